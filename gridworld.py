@@ -1,0 +1,1205 @@
+"""Batched grid world for cooperative robotic navigation (dissertation chapter 4).
+
+One numpy core, `GridWorldCore`, simulates B independent worlds with N agents each; every
+rule (safety controller, events, rewards, sensors, map generation, observations, heuristic)
+is implemented once, vectorised over worlds and agents. Thin faces sit on top:
+
+- `GridWorldEnv`        Gymnasium Env, registered as "GridWorld-v0" (one world, one agent);
+- `GridWorldVectorEnv`  native Gymnasium VectorEnv (B worlds; with N > 1 agents every array
+                        gets an agent axis, which is the batched multi-agent form for training);
+- `parallel_env(...)`   PettingZoo ParallelEnv (one world, N agents).
+
+Conventions
+- Cells are indexed [row, col]; row 0 is North. Actions: 0 North, 1 South, 2 West, 3 East,
+  4 WAIT (no action: a lost message or a faulty agent). The learned action space is the four
+  moves (§6.3.1); WAIT is accepted everywhere as "the agent gave no action".
+- Synchronous moves with the safety controller of §4.2.2.5: a move into an obstacle, the
+  border or an agent that stays is blocked. Two agents aiming at one cell: the lower index
+  wins. Following is allowed (an agent may enter a cell its occupant leaves in the same step);
+  swapping two agents is blocked for both (they would pass through each other).
+- Battery = steps left before truncation, starting at `battery_factor * h * w` (5·size², as
+  in the author's code); truncation (battery empty) and termination (all covered) are distinct.
+- Deep observation (§6.3.2), per agent: "map" uint8 (4, V, V), channels points of interest,
+  covered, obstacles, agents, 0/255 (compressed edges hold rounded means); "out_of_bounds"
+  float32 (4, 2) rows [N, S, W, E] of [rows/cols beyond the window, known points of interest
+  beyond]; "last_action" float32 one-hot (5,) (WAIT included); "battery" float32 (1,) in [0, 1].
+  The map is a view of a channels-last buffer (torch reads it as channels_last). Frame
+  stacking (3 frames in the dissertation) is left to the trainer's replay buffer, which stores
+  each frame once and stacks at sample time; a single Env can use FrameStackObservation.
+- Tabular observation (§5.3.1): 8 range readings r' in the order N, S, E, W, NE, NW, SE, SW.
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import sys
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import yaml
+from gymnasium import spaces
+from gymnasium.vector import AutoresetMode, VectorEnv
+
+NORTH, SOUTH, WEST, EAST, WAIT = 0, 1, 2, 3, 4
+ACTION_DELTAS = np.array([[-1, 0], [1, 0], [0, -1], [0, 1], [0, 0]], dtype=np.int64)
+POI, COVERED, OBSTACLE, AGENT = 0, 1, 2, 3  # channel indices of the deep observation
+SENSORS = ("full", "camera", "lidar")
+STRUCTURES = ("competitive", "cooperative", "size_invariant")
+OBSERVATIONS = ("deep", "tabular")
+FREE_CHARS, BLOCKED_CHARS = set(".GS"), set("@OTW#")
+CODE = np.array([0xFF << (8 * ch) for ch in range(4)], np.uint32)  # channel byte as uint32 bits
+ONE_HOT = np.eye(5, dtype=np.float32)
+
+
+# ----------------------------------------------------------------------------- configuration
+@dataclass
+class RewardParams:
+    """Reward per event (Table 4.2). Defaults: the final single-agent reward of §6.3.3
+    (eq. 6.13) and, for several agents, the size-invariant cooperative structure (eq. 7.5)."""
+
+    time_step: float = -1.0
+    new_cell: float = 1.0
+    blocked: float = -1.0
+    revisit: float = 0.0
+    repeated_action: float = 0.0
+    finished: float = 0.0
+    timeout: float = 0.0
+    waited: float = 0.0
+    finished_line: float = 0.0
+    wall_adjacent: float = 0.0
+    structure: str = "size_invariant"
+    gain: float = 0.25
+    scale_by_area: bool = False
+    positive_only_if_new: bool = False
+
+    @classmethod
+    def chapter5(cls) -> "RewardParams":
+        """§5.3.4: every term scaled by 1/(h·w); positive terms only when a new cell is covered."""
+        return cls(time_step=0.0, new_cell=1.0, blocked=-10.0, revisit=-5.0, repeated_action=1.0,
+                   finished_line=1.0, wall_adjacent=1.0, structure="competitive", gain=0.0,
+                   scale_by_area=True, positive_only_if_new=True)
+
+
+@dataclass
+class EnvConfig:
+    """Environment configuration; field names follow Table 4.1."""
+
+    size: int = 10
+    min_size: int = 5
+    random_size: bool = False
+    number_obstacles: int = 0
+    obstacles_random: bool = False
+    number_agents: int = 1
+    number_agent_random: bool = False
+    sensor: str = "full"
+    sensor_range: int = 3
+    starting_position: Any = None
+    starting_position_random: bool = True
+    random_coverage: bool = False
+    random_coverage_max: float = 0.7
+    number_points_of_interest: int = 0
+    map_configuration: str | None = None
+    dataset_path: str | None = None
+    load_state: bool = False
+    load_random: bool = True
+    battery_factor: float = 5.0
+    sensor_failure: float = 0.0
+    faulty_agent_step: int | None = None
+    faulty_agent: int = -1
+    view_size: int = 41
+    observation: str = "deep"
+    reward: RewardParams = field(default_factory=RewardParams)
+    name: str = ""
+    base_steps: int = 0
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "EnvConfig":
+        d = dict(d)
+        unknown = set(d) - {f.name for f in dataclasses.fields(cls)}
+        if unknown:
+            raise ValueError(f"unknown environment setting(s): {sorted(unknown)}")
+        if isinstance(d.get("reward"), dict):
+            bad = set(d["reward"]) - {f.name for f in dataclasses.fields(RewardParams)}
+            if bad:
+                raise ValueError(f"unknown reward setting(s): {sorted(bad)}")
+            d["reward"] = RewardParams(**d["reward"])
+        return cls(**d)
+
+    def replace(self, **changes) -> "EnvConfig":
+        return EnvConfig.from_dict({**dataclasses.asdict(self), "reward": self.reward, **changes})
+
+    def validate(self) -> None:
+        def bad(msg):
+            raise ValueError(f"invalid environment configuration: {msg}")
+
+        if self.sensor not in SENSORS:
+            bad(f"sensor must be one of {SENSORS}, got {self.sensor!r}")
+        if self.observation not in OBSERVATIONS:
+            bad(f"observation must be one of {OBSERVATIONS}, got {self.observation!r}")
+        if self.reward.structure not in STRUCTURES:
+            bad(f"reward structure must be one of {STRUCTURES}, got {self.reward.structure!r}")
+        if self.size < 2 or (self.random_size and not 2 <= self.min_size <= self.size):
+            bad(f"need 2 <= min_size <= size, got size={self.size} min_size={self.min_size}")
+        if self.number_agents < 1:
+            bad(f"number_agents must be >= 1, got {self.number_agents}")
+        if self.sensor_range < 1:
+            bad(f"sensor_range must be >= 1, got {self.sensor_range}")
+        if not 0.0 <= self.random_coverage_max < 1.0:
+            bad(f"random_coverage_max must be in [0, 1), got {self.random_coverage_max}")
+        if not 0.0 <= self.sensor_failure <= 1.0:
+            bad(f"sensor_failure must be in [0, 1], got {self.sensor_failure}")
+        if self.view_size < 5 or self.view_size % 2 == 0:
+            bad(f"view_size must be odd and >= 5, got {self.view_size}")
+        if self.number_points_of_interest < 0 or self.battery_factor <= 0:
+            bad("number_points_of_interest must be >= 0 and battery_factor > 0")
+        if self.map_configuration is None and self.dataset_path is None:
+            cells = self.size * self.size if not self.random_size else self.min_size ** 2
+            if self.number_obstacles < 0 or self.number_obstacles > cells - self.number_agents - 1:
+                bad(f"{self.number_obstacles} obstacles and {self.number_agents} agent(s) do not "
+                    f"fit a {int(math.sqrt(cells))}x{int(math.sqrt(cells))} map with a cell to cover")
+        if not self.starting_position_random and self.starting_position is None:
+            bad("starting_position_random is False but no starting_position is given")
+
+
+def load_config(path: str) -> dict[str, EnvConfig]:
+    """Named environments from a YAML file (curriculum stages, Table 4.1 keys).
+
+    The file is either a mapping name -> settings or a list of settings each with a `name`."""
+    try:
+        with open(path) as f:
+            data = yaml.safe_load(f)
+    except OSError as e:
+        raise ValueError(f"{path}: cannot read config ({e.strerror})") from None
+    except yaml.YAMLError as e:
+        raise ValueError(f"{path}: not valid YAML ({str(e).splitlines()[0]})") from None
+    if isinstance(data, list):
+        data = {d.get("name", f"env{i + 1}"): d for i, d in enumerate(data)}
+    if not isinstance(data, dict) or not all(isinstance(v, dict) for v in data.values()):
+        raise ValueError(f"{path}: expected a mapping of environment names to settings")
+    try:
+        configs = {name: EnvConfig.from_dict({"name": name, **d}) for name, d in data.items()}
+        for c in configs.values():
+            c.validate()
+    except (ValueError, TypeError) as e:
+        raise ValueError(f"{path}: {e}") from None
+    return configs
+
+
+# ----------------------------------------------------------------------------- maps on disk
+@dataclass
+class Scenario:
+    """A map with optional agent starts and initial coverage (row-major, obstacle=True)."""
+
+    obstacles: np.ndarray
+    starts: np.ndarray | None = None
+    covered: np.ndarray | None = None
+
+
+def _parse_rows(rows: list[str], path: str, first_line: int) -> Scenario:
+    if not rows:
+        raise ValueError(f"{path}: no map rows")
+    widths = {len(r) for r in rows}
+    if len(widths) != 1:
+        raise ValueError(f"{path}: ragged rows (lengths {sorted(widths)})")
+    chars = np.array([list(r) for r in rows])
+    known = FREE_CHARS | BLOCKED_CHARS | set("0123456789x")
+    unknown = ~np.isin(chars, list(known))
+    if unknown.any():
+        y, x = np.argwhere(unknown)[0]
+        raise ValueError(f"{path}: unknown character {chars[y, x]!r} at line {first_line + y}, "
+                         f"column {x + 1}")
+    obstacles = np.isin(chars, list(BLOCKED_CHARS))
+    digits = np.char.isdigit(chars)
+    starts = None
+    if digits.any():
+        ids = chars[digits].astype(int)
+        if len(set(ids.tolist())) != len(ids) or set(ids.tolist()) != set(range(len(ids))):
+            raise ValueError(f"{path}: agent starts must be the digits 0..{len(ids) - 1}, once each")
+        starts = np.argwhere(digits)[np.argsort(ids)]
+    covered = chars == "x"
+    return Scenario(obstacles, starts, covered if covered.any() else None)
+
+
+def load_map(path: str) -> Scenario:
+    """Load a MovingAI `.map` file or a plain ASCII map (`.` free, `@`/`#` obstacle, `x` covered,
+    digits 0-9 agent starts). Raises ValueError naming the file and the problem."""
+    try:
+        with open(path) as f:
+            lines = f.read().splitlines()
+    except OSError as e:
+        raise ValueError(f"{path}: cannot read map ({e.strerror})") from None
+    if path.endswith(".map"):
+        header = [ln.split() for ln in lines[:4]]
+        if (len(header) < 4 or header[0][:1] != ["type"] or header[1][:1] != ["height"]
+                or header[2][:1] != ["width"] or header[3] != ["map"]):
+            raise ValueError(f"{path}: bad MovingAI header (expected type/height/width/map lines)")
+        try:
+            h, w = int(header[1][1]), int(header[2][1])
+        except (IndexError, ValueError):
+            raise ValueError(f"{path}: bad MovingAI header (height/width not integers)") from None
+        rows = [ln for ln in lines[4:] if ln.strip()]
+        if len(rows) != h or any(len(r) != w for r in rows):
+            raise ValueError(f"{path}: header says {h}x{w} but the rows do not match")
+        scenario = _parse_rows(rows, path, 5)
+    else:
+        scenario = _parse_rows([ln.rstrip() for ln in lines if ln.strip()], path, 1)
+    check_scenario(scenario, path)
+    return scenario
+
+
+def save_map(path: str, scenario: Scenario) -> None:
+    """Write a plain ASCII map (the format `load_map` reads for non-.map files)."""
+    chars = np.where(scenario.obstacles, "@", ".").astype("<U1")
+    if scenario.covered is not None:
+        chars[scenario.covered & ~scenario.obstacles] = "x"
+    if scenario.starts is not None:
+        for i, (y, x) in enumerate(scenario.starts):
+            chars[y, x] = str(i)
+    with open(path, "w") as f:
+        f.write("\n".join("".join(r) for r in chars) + "\n")
+
+
+def check_scenario(s: Scenario, where: str = "map") -> None:
+    """Raise ValueError if a scenario cannot be fully covered as given."""
+    free = ~s.obstacles
+    if not free.any():
+        raise ValueError(f"{where}: no free cell")
+    if s.starts is not None:
+        st = np.asarray(s.starts)
+        h, w = s.obstacles.shape
+        if st.ndim != 2 or st.shape[1] != 2:
+            raise ValueError(f"{where}: starts must be a list of [row, col]")
+        inside = (st[:, 0] >= 0) & (st[:, 0] < h) & (st[:, 1] >= 0) & (st[:, 1] < w)
+        if not inside.all():
+            raise ValueError(f"{where}: start {st[~inside][0].tolist()} is out of bounds ({h}x{w})")
+        if s.obstacles[st[:, 0], st[:, 1]].any():
+            y, x = st[s.obstacles[st[:, 0], st[:, 1]]][0]
+            raise ValueError(f"{where}: start [{y}, {x}] is on an obstacle")
+        if len({(int(y), int(x)) for y, x in st}) != len(st):
+            raise ValueError(f"{where}: duplicate starts")
+        if len(st) > free.sum():
+            raise ValueError(f"{where}: {len(st)} agents but only {free.sum()} free cells")
+    seed = np.zeros_like(free)
+    seed[tuple(np.argwhere(free)[0])] = True
+    if (_flood(free[None], seed[None])[0] != free).any():
+        raise ValueError(f"{where}: free cells are not one 4-connected component; full coverage "
+                         "is impossible")
+
+
+def save_dataset(path: str, scenarios: list[Scenario]) -> None:
+    """Save scenarios as compressed .npz: obstacles (M,H,W) padded with obstacles, sizes (M,2),
+    starts (M,Nmax,2) padded with -1, covered (M,H,W)."""
+    if not scenarios:
+        raise ValueError(f"{path}: no scenarios to save")
+    H = max(s.obstacles.shape[0] for s in scenarios)
+    W = max(s.obstacles.shape[1] for s in scenarios)
+    n = max((0 if s.starts is None else len(s.starts)) for s in scenarios)
+    obstacles = np.ones((len(scenarios), H, W), bool)
+    covered = np.zeros((len(scenarios), H, W), bool)
+    starts = np.full((len(scenarios), n, 2), -1, np.int16)
+    sizes = np.array([s.obstacles.shape for s in scenarios], np.int16)
+    for i, s in enumerate(scenarios):
+        h, w = s.obstacles.shape
+        obstacles[i, :h, :w] = s.obstacles
+        if s.covered is not None:
+            covered[i, :h, :w] = s.covered
+        if s.starts is not None:
+            starts[i, :len(s.starts)] = s.starts
+    np.savez_compressed(path, obstacles=obstacles, sizes=sizes, starts=starts, covered=covered)
+
+
+def load_dataset(path: str) -> list[Scenario]:
+    try:
+        data = np.load(path)
+        obstacles, sizes, starts = data["obstacles"], data["sizes"], data["starts"]
+        covered = data["covered"] if "covered" in data else np.zeros_like(obstacles)
+    except (OSError, ValueError, KeyError) as e:
+        raise ValueError(f"{path}: not a gridworld dataset ({e})") from None
+    out = []
+    for i, (h, w) in enumerate(sizes):
+        st = starts[i][starts[i, :, 0] >= 0]
+        s = Scenario(obstacles[i, :h, :w].copy(), st if len(st) else None,
+                     covered[i, :h, :w].copy() if covered[i].any() else None)
+        check_scenario(s, f"{path}[{i}]")
+        out.append(s)
+    return out
+
+
+# ----------------------------------------------------------------------------- grid helpers
+def _neighbours_any(m: np.ndarray) -> np.ndarray:
+    """4-neighbourhood dilation of a (..., H, W) bool array (cells outside count as False)."""
+    out = np.zeros_like(m)
+    out[..., 1:, :] |= m[..., :-1, :]
+    out[..., :-1, :] |= m[..., 1:, :]
+    out[..., :, 1:] |= m[..., :, :-1]
+    out[..., :, :-1] |= m[..., :, 1:]
+    return out
+
+
+def _flood(passable: np.ndarray, seed: np.ndarray) -> np.ndarray:
+    """Cells of `passable` 4-connected to `seed`, for a batch (B, H, W) at once."""
+    reach = seed & passable
+    while True:
+        grown = (reach | _neighbours_any(reach)) & passable
+        if (grown == reach).all():
+            return reach
+        reach = grown
+
+
+def _line_of_sight_table(r: int) -> tuple[np.ndarray, np.ndarray]:
+    """Offsets of the (2r+1)^2 sensor square and, for each, the cells strictly between the
+    agent and it on a DDA line (padded with the agent's own cell)."""
+    d = np.arange(-r, r + 1)
+    offsets = np.stack(np.meshgrid(d, d, indexing="ij"), -1).reshape(-1, 2)
+    n = np.abs(offsets).max(1)
+    k = np.arange(1, max(r, 2))
+    frac = k[None, :] / np.maximum(n, 1)[:, None]
+    between = np.floor(offsets[:, None, :] * frac[..., None] + 0.5).astype(np.int64)
+    between[k[None, :] >= n[:, None]] = 0
+    return offsets, between
+
+
+# ----------------------------------------------------------------------------- the core
+class GridWorldCore:
+    """B independent worlds with up to N agents each, as numpy arrays, stepped together.
+
+    All cell arrays live in canvas coordinates: the largest map (H, W) padded by c = V // 2
+    obstacle cells on every side, so a move never needs a bounds check and an agent's
+    observation window is a plain strided slice. Agent positions are flat indices into the
+    (B, H + 2c, W + 2c) arrays; `agent_cells()` gives [row, col] map coordinates."""
+
+    def __init__(self, config: EnvConfig | dict | None = None, num_worlds: int = 1, seed=None):
+        self.B = num_worlds
+        self.rng = np.random.default_rng(seed)
+        self.H = self.W = 0
+        self.config = EnvConfig()
+        self.configure(config if config is not None else EnvConfig())
+
+    # --- configuration -----------------------------------------------------------------
+    def configure(self, config: EnvConfig | dict | None = None, **changes) -> None:
+        """Change the settings; each world picks them up at its next reset (§4.2.1.1)."""
+        if isinstance(config, dict):
+            config = EnvConfig.from_dict(config)
+        config = config or self.config
+        config = config.replace(**changes) if changes else config
+        config.validate()
+        scenarios: list[Scenario] | None = None
+        if config.dataset_path:
+            scenarios = load_dataset(config.dataset_path)
+        elif config.map_configuration:
+            scenarios = [load_map(config.map_configuration)]
+        n = config.number_agents
+        H = W = config.size
+        if scenarios is not None:
+            H = max(s.obstacles.shape[0] for s in scenarios)
+            W = max(s.obstacles.shape[1] for s in scenarios)
+            if config.load_state and any(s.starts is None for s in scenarios):
+                raise ValueError("load_state needs scenarios with agent starts")
+            if config.load_state:
+                n = max(len(s.starts) for s in scenarios)
+            for i, s in enumerate(scenarios):
+                agents = len(s.starts) if config.load_state else n
+                if (~s.obstacles).sum() <= agents:
+                    raise ValueError(f"scenario {i}: {agents} agent(s) leave no free cell to cover")
+        if config.starting_position is not None and not config.starting_position_random:
+            st = np.atleast_2d(np.asarray(config.starting_position))
+            if st.ndim != 2 or st.shape[1] != 2 or len(st) != n:
+                raise ValueError(f"starting_position must give {n} [row, col] pair(s), got "
+                                 f"{config.starting_position!r}")
+        if config.sensor_range > config.view_size // 2:
+            raise ValueError(f"sensor_range {config.sensor_range} exceeds the view radius "
+                             f"{config.view_size // 2}")
+        first = self.H == 0
+        if not first and n != self.N:
+            raise ValueError("changing number_agents needs a new environment")
+        grow = first or H > self.H or W > self.W or config.view_size != self.config.view_size
+        old = None if first else (self.agent_cells(), self.hw.copy())
+        self.config, self.scenarios, self.next_scenario = config, scenarios, 0
+        self.V = config.view_size
+        self.los_offsets, self.los_between = _line_of_sight_table(config.sensor_range)
+        if grow:
+            self._allocate(max(H, self.H), max(W, self.W), n, old)
+
+    def _allocate(self, H: int, W: int, N: int, old) -> None:
+        """(Re)build the canvas-coordinate arrays, keeping the worlds in progress."""
+        c = self.config.view_size // 2
+        B, Ph, Pw = self.B, H + 2 * c, W + 2 * c
+        keep = {}
+        if old is not None:
+            oc = self.c
+            keep = {k: getattr(self, k)[:, oc:oc + self.H, oc:oc + self.W]
+                    for k in ("obstacle", "covered", "seen", "occupied")}
+        self.H, self.W, self.N, self.c, self.Ph, self.Pw = H, W, N, c, Ph, Pw
+        self.obstacle = np.ones((B, Ph, Pw), bool)
+        self.seen = np.ones((B, Ph, Pw), bool)
+        self.covered = np.zeros((B, Ph, Pw), bool)
+        self.occupied = np.zeros((B, Ph, Pw), bool)
+        for k, v in keep.items():
+            getattr(self, k)[:, c:c + v.shape[1], c:c + v.shape[2]] = v
+        self.canvas = np.zeros((B, Ph, Pw, 4), np.uint8)
+        self.canvas32 = self.canvas.view(np.uint32).reshape(-1)
+        self.views = {k: getattr(self, k).reshape(-1) for k in ("obstacle", "seen", "covered", "occupied")}
+        self.delta = np.array([-Pw, Pw, -1, 1, 0], np.int64)
+        n_starts = B * Ph * Pw - (self.V - 1) * (Pw + 1)
+        s = self.canvas32.strides[0]
+        self.windows = np.lib.stride_tricks.as_strided(
+            self.canvas32, (n_starts, self.V, self.V), (s, Pw * s, s), writeable=False)
+        if old is None:
+            self.pos = np.zeros((B, N), np.int64)
+            self.active = np.zeros((B, N), bool)
+            self.last_action = np.full((B, N), WAIT, np.int64)
+            self.hw = np.ones((B, 2), np.int64)
+            for k in ("battery", "budget", "steps", "new_cells", "agent_moves", "n_poi_start",
+                      "n_free", "remaining"):
+                setattr(self, k, np.zeros(B, np.int64))
+            self.all_active, self.any_large = True, False
+        else:
+            self.pos = self._flat(np.arange(B)[:, None], old[0][..., 0], old[0][..., 1])
+            self._paint_worlds(np.arange(B))
+
+    def _flat(self, b, y, x) -> np.ndarray:
+        """Flat canvas index of map cell [y, x] of world b."""
+        return (b * self.Ph + y + self.c) * self.Pw + x + self.c
+
+    def agent_cells(self) -> np.ndarray:
+        """Agent positions as [row, col] map coordinates, (B, N, 2)."""
+        y, x = np.divmod(self.pos % (self.Ph * self.Pw), self.Pw)
+        return np.stack([y - self.c, x - self.c], -1)
+
+    # --- episode initialisation (Algorithm 9) -------------------------------------------
+    def reset(self, worlds=None) -> None:
+        """Start new episodes in the given worlds (all by default; a bool mask or indices)."""
+        cfg, rng = self.config, self.rng
+        if worlds is None:
+            w = np.arange(self.B)
+        else:
+            w = np.asarray(worlds)
+            w = np.flatnonzero(w) if w.dtype == bool else w.astype(np.int64)
+        if len(w) == 0:
+            return
+        k, H, W, N = len(w), self.H, self.W, self.N
+        bidx = np.arange(k)[:, None]
+        n_agents = rng.integers(1, N + 1, k) if cfg.number_agent_random else np.full(k, N)
+        active = np.arange(N)[None, :] < n_agents[:, None]
+        starts = np.zeros((k, N, 2), np.int64)
+        covered0 = np.zeros((k, H, W), bool)
+        loaded_starts = cfg.load_state and self.scenarios is not None
+        if self.scenarios is not None:
+            idx = (rng.integers(0, len(self.scenarios), k) if cfg.load_random else
+                   (self.next_scenario + np.arange(k)) % len(self.scenarios))
+            self.next_scenario = int((self.next_scenario + k) % len(self.scenarios))
+            obstacle = np.ones((k, H, W), bool)
+            hw = np.zeros((k, 2), np.int64)
+            for j, i in enumerate(idx):  # one array copy per loaded map
+                s = self.scenarios[i]
+                h_, w_ = s.obstacles.shape
+                obstacle[j, :h_, :w_], hw[j] = s.obstacles, (h_, w_)
+                if loaded_starts:
+                    starts[j, :len(s.starts)] = s.starts
+                    active[j] = np.arange(N) < len(s.starts)
+                    if s.covered is not None:
+                        covered0[j, :h_, :w_] = s.covered
+        else:
+            side = rng.integers(cfg.min_size, cfg.size + 1, k) if cfg.random_size else np.full(k, cfg.size)
+            hw = np.stack([side, side], 1)
+            obstacle = ~((np.arange(H)[None, :, None] < side[:, None, None]) &
+                         (np.arange(W)[None, None, :] < side[:, None, None]))
+        if not loaded_starts:
+            if cfg.starting_position_random or cfg.starting_position is None:
+                starts = self._random_cells(~obstacle, N)
+            else:
+                st = np.atleast_2d(np.asarray(cfg.starting_position, np.int64))
+                ok = (st >= 0).all(1)[None] & (st[None, :, 0] < hw[:, :1]) & (st[None, :, 1] < hw[:, 1:])
+                ok &= ~obstacle[bidx, np.clip(st[:, 0], 0, H - 1), np.clip(st[:, 1], 0, W - 1)]
+                if not ok.all():
+                    raise ValueError(f"starting_position {st.tolist()} is out of the map or on an obstacle")
+                if len({tuple(p) for p in st.tolist()}) != len(st):
+                    raise ValueError(f"duplicate starting positions {st.tolist()}")
+                starts[:] = st[None]
+        start_mask = np.zeros((k, H, W), bool)
+        start_mask[bidx, starts[..., 0], starts[..., 1]] = active
+        if self.scenarios is None:  # Algorithm 9 lines 7-10: obstacles, then Algorithm 10
+            n_obs = np.minimum(cfg.number_obstacles, hw[:, 0] * hw[:, 1] - N - 1)
+            if cfg.obstacles_random:
+                n_obs = rng.integers(0, n_obs + 1)
+            keys = rng.random((k, H * W))
+            keys[(obstacle | start_mask).reshape(k, -1)] = np.inf
+            rank = np.argsort(np.argsort(keys, 1), 1).reshape(k, H, W)
+            obstacle |= rank < n_obs[:, None, None]
+            obstacle |= ~_flood(~obstacle, start_mask)  # Algorithm 10: unreachable -> obstacle
+        self._init_worlds(w, obstacle, hw, starts, active, start_mask, covered0)
+
+    def _random_cells(self, allowed: np.ndarray, n: int) -> np.ndarray:
+        """n distinct uniformly random cells of `allowed` (k, H, W) per world -> (k, n, 2)."""
+        k, H, W = allowed.shape
+        keys = self.rng.random((k, H * W))
+        keys[~allowed.reshape(k, -1)] = np.inf
+        flat = np.argsort(keys, 1)[:, :n]
+        return np.stack(np.divmod(flat, W), -1)
+
+    def _init_worlds(self, w, obstacle, hw, starts, active, start_mask, covered0) -> None:
+        cfg, rng, c = self.config, self.rng, self.c
+        k, H, W = obstacle.shape
+        free = ~obstacle
+        covered = covered0 & free
+        if cfg.random_coverage:  # §6.4.2.5 / Table 4.1: up to a fraction pre-covered
+            frac = rng.random(k) * cfg.random_coverage_max
+            covered |= free & (rng.random((k, H, W)) < frac[:, None, None])
+        if cfg.number_points_of_interest > 0:  # n-point coverage; 1 = point-to-point
+            candidates = free & ~start_mask
+            if candidates.sum((1, 2)).min() < cfg.number_points_of_interest:
+                raise ValueError(f"a map has fewer than {cfg.number_points_of_interest} free cells "
+                                 "to keep as points of interest")
+            keep = self._random_cells(candidates, cfg.number_points_of_interest)
+            covered = free.copy()
+            covered[np.arange(k)[:, None], keep[..., 0], keep[..., 1]] = False
+        covered |= start_mask  # Algorithm 9 line 17
+        none_left = ~(free & ~covered).any((1, 2))
+        if none_left.any():  # keep one point of interest so that no episode starts finished
+            cell = self._random_cells(free[none_left] & ~start_mask[none_left], 1)[:, 0]
+            covered[np.flatnonzero(none_left), cell[:, 0], cell[:, 1]] = False
+        inner = (w, slice(c, c + H), slice(c, c + W))
+        self.obstacle[inner], self.covered[inner], self.occupied[inner] = obstacle, covered, start_mask
+        self.seen[inner] = obstacle if cfg.sensor != "full" else True
+        self.seen[inner] |= ~((np.arange(H)[:, None] < hw[:, None, None, 0]) &
+                              (np.arange(W) < hw[:, None, None, 1]))  # out of map: known obstacle
+        self.hw[w] = hw
+        park = self._flat(w[:, None], -c, -c)  # absent agents sit in the padding corner
+        self.pos[w] = np.where(active, self._flat(w[:, None], starts[..., 0], starts[..., 1]), park)
+        self.active[w] = active
+        self.all_active = bool(self.active.all())
+        self.any_large = bool((self.hw.max(1) > self.V // 2).any())
+        self.last_action[w] = WAIT
+        self.budget[w] = np.ceil(cfg.battery_factor * hw[:, 0] * hw[:, 1]).astype(np.int64)
+        self.battery[w] = self.budget[w]
+        self.steps[w] = self.new_cells[w] = self.agent_moves[w] = 0
+        self.n_free[w] = free.sum((1, 2))
+        self.remaining[w] = self.n_poi_start[w] = (free & ~covered).sum((1, 2))
+        if cfg.sensor != "full":
+            self._sense(w, np.ones((len(w), self.N), bool))
+        self._paint_worlds(w)
+
+    # --- the observation buffer (derived from the arrays above) ------------------------
+    def _codes(self, idx) -> np.ndarray:
+        """uint32 cell codes (4 channel bytes) of the known map at flat canvas indices."""
+        v = self.views
+        seen, obst, cov = v["seen"][idx], v["obstacle"][idx], v["covered"][idx]
+        code = (seen & ~obst) * np.where(cov, CODE[COVERED], CODE[POI])
+        code |= (seen & obst) * CODE[OBSTACLE]
+        code |= v["occupied"][idx] * CODE[AGENT]
+        return code.astype(np.uint32)
+
+    def _paint_worlds(self, w) -> None:
+        base = (np.asarray(w) * self.Ph * self.Pw)[:, None]
+        idx = (base + np.arange(self.Ph * self.Pw)).ravel()
+        self.canvas32[idx] = self._codes(idx)
+
+    # --- sensors (§4.2.2.4) -------------------------------------------------------------
+    def _sense(self, w, working) -> np.ndarray:
+        """Mark the sensor footprint of the active, working agents of worlds w as seen."""
+        off, between = self.los_offsets, self.los_between
+        step = off[:, 0] * self.Pw + off[:, 1]
+        p = self.pos[w]
+        cells = p[..., None] + step  # (k, N, (2r+1)^2)
+        ok = np.broadcast_to((self.active[w] & working)[..., None], cells.shape)
+        if self.config.sensor == "lidar":  # line of sight stops at obstacles (padding included)
+            path = p[..., None, None] + between[..., 0] * self.Pw + between[..., 1]
+            ok = ok & ~self.views["obstacle"][path].any(-1)
+        cells = cells[ok]
+        self.views["seen"][cells] = True
+        return cells
+
+    # --- the step (§4.2.2.5) ------------------------------------------------------------
+    def step(self, actions) -> dict[str, np.ndarray]:
+        """Advance every world one step. actions: (B, N) ints in 0..4. Returns per-agent event
+        masks and rewards (B, N) and per-world terminated/truncated (B,)."""
+        cfg, B, N, v = self.config, self.B, self.N, self.views
+        a = np.asarray(actions, np.int64).reshape(B, N)
+        if (a.view(np.uint64) > WAIT).any():  # negative values wrap to huge unsigned ones
+            raise ValueError(f"actions must be in 0..4 (N, S, W, E, WAIT), got {np.unique(a).tolist()}")
+        if cfg.faulty_agent_step is not None:  # §7.5.3.3: a faulty agent freezes
+            a = a.copy()
+            a[self.steps >= cfg.faulty_agent_step, cfg.faulty_agent] = WAIT
+        if not self.all_active:
+            a = np.where(self.active, a, WAIT)
+        waited = a == WAIT
+        moving = ~waited
+        old = self.pos
+        tgt = old + self.delta[a]
+        moves = moving & ~v["obstacle"][tgt]
+        if N > 1:
+            moves = self._resolve_conflicts(old, tgt, moves)
+        pos = np.where(moves, tgt, old)
+        new = moves & ~v["covered"][pos]
+        live, left = (pos, old) if self.all_active else (pos[self.active], old[self.active])
+        v["occupied"][left] = False
+        v["occupied"][live] = True
+        v["covered"][live] = True
+        self.canvas32[left] = CODE[COVERED]  # an agent's cell is always covered and seen
+        self.canvas32[live] = CODE[COVERED] | CODE[AGENT]
+        self.pos = pos
+        n_new = new.sum(1)
+        self.remaining -= n_new
+        self.new_cells += n_new
+        self.agent_moves += moving.sum(1)
+        self.steps += 1
+        self.battery -= 1
+        terminated = self.remaining == 0
+        truncated = (self.battery <= 0) & ~terminated
+        if cfg.sensor != "full":
+            working = self.rng.random((B, N)) >= cfg.sensor_failure  # §6.5.3.3
+            sensed = self._sense(np.arange(B), working)
+            self.canvas32[sensed] = self._codes(sensed)
+        events = dict(blocked=moving & ~moves, new=new, revisit=moves & ~new, waited=waited,
+                      repeated_action=moving & (a == self.last_action),
+                      finished=terminated[:, None].repeat(N, 1), timeout=truncated[:, None].repeat(N, 1))
+        if not self.all_active:
+            events = {k: e & self.active for k, e in events.items()}
+        self.last_action = a
+        if cfg.reward.finished_line or cfg.reward.wall_adjacent:
+            events.update(self._line_and_wall_events(new))
+        events["reward"] = self._reward(events)
+        events["terminated"], events["truncated"] = terminated, truncated
+        return events
+
+    def _resolve_conflicts(self, old, tgt, moves) -> np.ndarray:
+        """Safety controller for several agents; iterates until no conflict is left."""
+        B, N = moves.shape
+        prio = np.broadcast_to(np.arange(N), (B, N)).ravel()
+        swap = (tgt[:, :, None] == old[:, None, :]) & (tgt[:, None, :] == old[:, :, None])
+        while True:
+            dest = np.where(moves, tgt, old).ravel()
+            order = np.lexsort((np.where(moves.ravel(), prio, -1), dest))  # stayers first
+            first = np.ones(B * N, bool)
+            first[1:] = dest[order][1:] != dest[order][:-1]
+            lost = np.zeros(B * N, bool)
+            lost[order] = ~first
+            lost = moves & lost.reshape(B, N)
+            lost |= moves & (swap & moves[:, None, :]).any(2)
+            if not lost.any():
+                return moves
+            moves = moves & ~lost
+
+    def _line_and_wall_events(self, new) -> dict[str, np.ndarray]:
+        """Chapter-5 events: the new cell finished its row or column; it touches a wall."""
+        poi = ~self.obstacle & ~self.covered
+        b, y, x = np.unravel_index(self.pos, self.obstacle.shape)
+        line = ~poi[b, y, :].any(-1) | ~poi[b, :, x].any(-1)
+        wall = self.views["obstacle"][self.pos[..., None] + self.delta[:4]].any(-1)
+        return dict(finished_line=new & line, wall_adjacent=new & wall)
+
+    def _reward(self, ev) -> np.ndarray:
+        """Reward of every agent from its events (eq. 6.13; eqs. 7.3-7.5; §5.3.4)."""
+        rp = self.config.reward
+        new = ev["new"]
+        r = np.float32(rp.new_cell) * new
+        if self.N > 1 and rp.structure != "competitive":
+            n_active = self.active.sum(1, keepdims=True)
+            several = n_active > 1
+            share = (new.sum(1, keepdims=True) - new) / np.maximum(n_active - 1, 1)  # eq. 7.4
+            own = 1.0 - rp.gain if rp.structure == "size_invariant" else 1.0  # eq. 7.5
+            r = np.where(several, own * r + rp.gain * rp.new_cell * share, r)
+        for name in ("repeated_action", "finished", "finished_line", "wall_adjacent"):
+            if getattr(rp, name):
+                r = r + np.float32(getattr(rp, name)) * ev[name]
+        if rp.positive_only_if_new:
+            r = np.where(ev["new"], r, np.minimum(r, 0))
+        r = r + np.float32(rp.time_step)
+        for name in ("blocked", "revisit", "waited", "timeout"):
+            if getattr(rp, name):
+                r = r + np.float32(getattr(rp, name)) * ev[name]
+        if rp.scale_by_area:
+            r = r / (self.hw[:, 0:1] * self.hw[:, 1:2])
+        if not self.all_active:
+            r = np.where(self.active, r, 0.0)
+        return r.astype(np.float32)
+
+    def recharge(self, worlds, factor: float = 2.0) -> None:
+        """Give worlds a new battery of factor * h * w steps (partial reset, §6.4.2.2)."""
+        w = np.asarray(worlds)
+        self.battery[w] = np.ceil(factor * self.hw[w, 0] * self.hw[w, 1]).astype(np.int64)
+
+    # --- metrics ------------------------------------------------------------------------
+    def metrics(self) -> dict[str, np.ndarray]:
+        """Per-world episode metrics so far: overlap (eq. 6.21), time-save factor (eq. 7.6), ρ."""
+        new = self.new_cells
+        return dict(steps=self.steps.copy(), new_cells=new.copy(), n_poi_start=self.n_poi_start.copy(),
+                    revisits=self.agent_moves - new,
+                    overlap=(self.agent_moves - new) / np.maximum(new, 1),
+                    time_save=self.steps / np.maximum(self.n_poi_start, 1),
+                    rho=self.steps / np.maximum(self.n_free, 1),
+                    completed=self.remaining == 0)
+
+    # --- observations -------------------------------------------------------------------
+    def observe(self) -> dict[str, np.ndarray]:
+        """Deep observation of every agent (§6.3.2); arrays with leading axes (B, N)."""
+        B, N, V, c = self.B, self.N, self.V, self.c
+        pos = self.pos.ravel()
+        start = pos - c * (self.Pw + 1)
+        if not self.all_active:  # absent agents (parked in the padding) get a dummy window
+            start = np.maximum(start, 0)
+        maps = self.windows[start]
+        oob = np.zeros((B * N, 4, 2), np.float32)
+        if self.any_large:
+            maps = self._compress(maps, oob)
+        battery = (self.battery / self.budget).astype(np.float32)
+        return {"map": maps.view(np.uint8).reshape(B, N, V, V, 4).transpose(0, 1, 4, 2, 3),
+                "out_of_bounds": oob.reshape(B, N, 4, 2),
+                "last_action": ONE_HOT[self.last_action],
+                "battery": battery.reshape(B, 1, 1) if N == 1 else battery[:, None, None].repeat(N, 1)}
+
+    def _compress(self, maps, oob) -> np.ndarray:
+        """Algorithm 11 for agents whose map reaches past the window core (offsets beyond ±R):
+        rows/cols 1 and V-2 become the mean of everything beyond, the outer ring stays
+        obstacle; `oob` gets, per direction N, S, W, E, [rows/cols beyond, known points of
+        interest beyond] (eq. 6.5)."""
+        V, c, R = self.V, self.c, self.V // 2 - 1
+        B, N = self.B, self.N
+        b = np.repeat(np.arange(B), N)
+        yx = self.agent_cells().reshape(-1, 2)
+        y, x, h, w = yx[:, 0], yx[:, 1], self.hw[b, 0], self.hw[b, 1]
+        beyond = np.stack([y - R, h - 1 - y - R, x - R, w - 1 - x - R], 1)
+        far = np.flatnonzero((beyond > 0).any(1) & self.active.ravel())
+        if len(far) == 0:
+            return maps
+        maps = maps.copy()
+        bk, yk, xk, hk, wk = b[far], y[far], x[far], h[far], w[far]
+        d = np.arange(V) - c
+
+        def bins(p, n):  # inclusive map row (col) range shown at each window index
+            lo = p[:, None] + d
+            hi = lo.copy()
+            lo[:, 1], hi[:, 1] = 0, p - R
+            lo[:, V - 2], hi[:, V - 2] = p + R, n - 1
+            lo, hi = np.maximum(lo, 0), np.minimum(hi, n[:, None] - 1)
+            empty = lo > hi
+            empty[:, [0, V - 1]] = True
+            lo = np.minimum(lo, n[:, None])
+            return lo, np.maximum(hi + 1, lo), empty
+
+        worlds, q = np.unique(bk, return_inverse=True)
+        known = self.canvas[worlds, c:c + self.H, c:c + self.W].astype(np.int32)
+        integral = np.zeros((len(worlds), self.H + 1, self.W + 1, 4), np.int32)
+        integral[:, 1:, 1:] = known.cumsum(1).cumsum(2)
+        (r0, r1, re), (c0, c1, ce) = bins(yk, hk), bins(xk, wk)
+        edge = np.array([1, V - 2])
+
+        def box(ra, rb, rempty, ca, cb, cempty):
+            qq = q.reshape((-1,) + (1,) * (ra.ndim - 1))
+            s = integral[qq, rb, cb] - integral[qq, ra, cb] - integral[qq, rb, ca] + integral[qq, ra, ca]
+            area = np.maximum((rb - ra) * (cb - ca), 1)[..., None]
+            out = np.rint(s / area).astype(np.uint8).view(np.uint32)[..., 0]
+            return np.where(rempty | cempty, CODE[OBSTACLE], out)
+
+        rows = box(r0[:, edge, None], r1[:, edge, None], re[:, edge, None],
+                   c0[:, None, :], c1[:, None, :], ce[:, None, :])  # (K, 2, V)
+        cols = box(r0[:, :, None], r1[:, :, None], re[:, :, None],
+                   c0[:, None, edge], c1[:, None, edge], ce[:, None, edge])  # (K, V, 2)
+        mk = maps[far]
+        mk[:, [0, V - 1], :] = CODE[OBSTACLE]
+        mk[:, :, [0, V - 1]] = CODE[OBSTACLE]
+        mk[:, edge, :] = rows
+        mk[:, :, edge] = cols
+        maps[far] = mk
+        poi = known[..., POI] > 0
+        row_cum = np.pad(poi.sum(2).cumsum(1), ((0, 0), (1, 0)))
+        col_cum = np.pad(poi.sum(1).cumsum(1), ((0, 0), (1, 0)))
+        oob[far, :, 0] = np.maximum(beyond[far], 0)
+        oob[far, :, 1] = np.stack([
+            row_cum[q, np.clip(yk - R, 0, None)],
+            row_cum[q, hk] - row_cum[q, np.minimum(yk + R + 1, hk)],
+            col_cum[q, np.clip(xk - R, 0, None)],
+            col_cum[q, wk] - col_cum[q, np.minimum(xk + R + 1, wk)]], 1)
+        return maps
+
+    def observe_tabular(self) -> np.ndarray:
+        """§5.3.1 readings r' for every agent, (B, N, 8) int8 in the order N, S, E, W, NE, NW,
+        SE, SW: -1 obstacle or wall adjacent, 0 adjacent cell covered, else the number of
+        consecutive uncovered cells (at most r-1 cardinal and floor(r/sqrt2)-1 diagonal, at
+        least 1: 2 and 1 for r = 3, as in the author's code)."""
+        r = self.config.sensor_range
+        cap = np.array([max(1, r - 1)] * 4 + [max(1, int(r / math.sqrt(2)) - 1)] * 4)
+        k = np.arange(1, cap.max() + 1)
+        dirs = np.array([[-1, 0], [1, 0], [0, 1], [0, -1], [-1, 1], [-1, -1], [1, 1], [1, -1]])
+        step = dirs[:, 0] * self.Pw + dirs[:, 1]
+        cells = self.pos[..., None, None] + step[:, None] * k  # (B, N, 8, kmax)
+        blocked = self.views["obstacle"][cells]
+        open_ = ~blocked & ~self.views["covered"][cells] & (k <= cap[:, None])
+        run = np.cumprod(open_, -1).sum(-1)
+        return np.where(blocked[..., 0], -1, run).astype(np.int8)
+
+    # --- the navigation heuristic -------------------------------------------------------
+    def heuristic_actions(self) -> np.ndarray:
+        """One step along a shortest path to the nearest known point of interest for every
+        agent at once, (B, N). Agents claim targets in index order, so no two chase one
+        cell; ties are broken at random. Paths use known free cells; a world with no known
+        point of interest left targets its frontier (known free cells next to unseen ones)."""
+        B, N, H, W, c = self.B, self.N, self.H, self.W, self.c
+        inner = (slice(None), slice(c - 1, c + H + 1), slice(c - 1, c + W + 1))  # 1-cell border
+        seen, obstacle = self.seen[inner], self.obstacle[inner]
+        passable = seen & ~obstacle
+        targets = passable & ~self.covered[inner]
+        no_poi = ~targets.any((1, 2))
+        if no_poi.any():
+            targets[no_poi] = (passable & _neighbours_any(~seen))[no_poi]
+        M = B * N
+        b = np.repeat(np.arange(B), N)
+        yx = self.agent_cells().reshape(M, 2) + 1
+        need = np.minimum(np.arange(N) + 1, targets.sum((1, 2))[:, None]).ravel()
+        need[~self.active.ravel()] = 0
+        pas, tg = passable[b], targets[b]
+        front = np.zeros((M, H + 2, W + 2), bool)
+        front[np.arange(M), yx[:, 0], yx[:, 1]] = True
+        dist = np.where(front, 0, np.iinfo(np.int32).max).astype(np.int32)
+        visited, found, layer = front.copy(), tg[front], 0
+        found = (tg & front).sum((1, 2))
+        while (found < need).any():  # BFS from every agent until it has reached enough targets
+            front = _neighbours_any(front) & pas & ~visited
+            if not front.any():
+                break
+            layer += 1
+            visited |= front
+            dist[front] = layer
+            found += (tg & front).sum((1, 2))
+        score = np.where(tg & visited, dist + self.rng.random((M, H + 2, W + 2)), np.inf)
+        score = score.reshape(B, N, -1)
+        claimed = np.zeros((B, score.shape[2]), bool)
+        goal = np.full((B, N), -1, np.int64)
+        for i in range(N):  # claims in priority order: a claimed cell is skipped by the rest
+            s = np.where(claimed, np.inf, score[:, i])
+            g = s.argmin(1)
+            has = np.isfinite(s[np.arange(B), g]) & self.active[:, i]
+            claimed[np.flatnonzero(has), g[has]] = True
+            goal[has, i] = g[has]
+        goal = goal.ravel()
+        gy, gx = np.divmod(np.maximum(goal, 0), W + 2)
+        rows = np.arange(M)
+        d = dist[rows, gy, gx]
+        ok = (goal >= 0) & (d > 0)
+        for i in range(int(d[ok].max(initial=1)) - 1, 0, -1):  # walk back to distance 1
+            walk = ok & (d > i)
+            ny, nx = gy[:, None] + ACTION_DELTAS[:4, 0], gx[:, None] + ACTION_DELTAS[:4, 1]
+            closer = dist[rows[:, None], ny, nx] == i
+            pick = np.argmax(closer * self.rng.random((M, 4)), 1)
+            gy = np.where(walk, ny[rows, pick], gy)
+            gx = np.where(walk, nx[rows, pick], gx)
+        move = np.select([gy < yx[:, 0], gy > yx[:, 0], gx < yx[:, 1], gx > yx[:, 1]],
+                         [NORTH, SOUTH, WEST, EAST], WAIT)
+        return np.where(ok, move, WAIT).reshape(B, N)
+
+    # --- rendering ----------------------------------------------------------------------
+    def render_rgb(self, world: int = 0, cell: int = 16) -> np.ndarray:
+        """RGB image of one world's known map in the colours of §4.2.4."""
+        h, w = self.hw[world]
+        c = self.c
+        known = self.canvas[world, c:c + h, c:c + w] > 0
+        rgb = np.empty((h, w, 3), np.uint8)
+        rgb[:] = (40, 90, 220)  # unseen: blue
+        rgb[known[..., POI]] = (255, 255, 255)
+        rgb[known[..., COVERED]] = (220, 50, 50)
+        rgb[known[..., OBSTACLE]] = (0, 0, 0)
+        img = rgb.repeat(cell, 0).repeat(cell, 1)
+        yy, xx = np.mgrid[:cell, :cell] - (cell - 1) / 2
+        disk = yy ** 2 + xx ** 2 <= (cell * 0.38) ** 2
+        for (py, px), on in zip(self.agent_cells()[world], self.active[world]):
+            if on:
+                img[py * cell:(py + 1) * cell, px * cell:(px + 1) * cell][disk] = (20, 40, 160)
+        return img
+
+
+# ----------------------------------------------------------------------------- spaces
+def _agent_observation_space(cfg: EnvConfig) -> spaces.Space:
+    if cfg.observation == "tabular":
+        return spaces.Box(-1, max(cfg.sensor_range, 2), (8,), np.int8)
+    V = cfg.view_size
+    return spaces.Dict({
+        "map": spaces.Box(0, 255, (4, V, V), np.uint8),
+        "out_of_bounds": spaces.Box(0, np.inf, (4, 2), np.float32),
+        "last_action": spaces.Box(0, 1, (5,), np.float32),
+        "battery": spaces.Box(0, 1, (1,), np.float32),
+    })
+
+
+def _make_config(config: EnvConfig | dict | None, kwargs: dict) -> EnvConfig:
+    if isinstance(config, EnvConfig):
+        return config.replace(**kwargs) if kwargs else config
+    return EnvConfig.from_dict({**(config or {}), **kwargs})
+
+
+def _info(core: GridWorldCore, events: dict | None = None) -> dict[str, np.ndarray]:
+    info = core.metrics()
+    if events is not None:
+        info.update({k: events[k] for k in ("blocked", "new", "revisit", "waited", "repeated_action")})
+    info["active"] = core.active.copy()
+    return info
+
+
+# ----------------------------------------------------------------------------- Gymnasium Env
+class GridWorldEnv(gym.Env):
+    """One world, one agent: the Gymnasium face of the core (registered as GridWorld-v0)."""
+
+    metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 10}
+
+    def __init__(self, config: EnvConfig | dict | None = None, render_mode: str | None = None, **kwargs):
+        cfg = _make_config(config, kwargs)
+        if cfg.number_agents != 1:
+            raise ValueError("GridWorldEnv is single-agent; use parallel_env or GridWorldVectorEnv")
+        if render_mode not in (None, *self.metadata["render_modes"]):
+            raise ValueError(f"render_mode must be one of {self.metadata['render_modes']}")
+        self.core = GridWorldCore(cfg, 1)
+        self.render_mode = render_mode
+        self.observation_space = _agent_observation_space(cfg)
+        self.action_space = spaces.Discrete(4)
+        self._window = None
+
+    def configure(self, config=None, **changes) -> None:
+        self.core.configure(config, **changes)
+
+    def _obs(self):
+        if self.core.config.observation == "tabular":
+            return self.core.observe_tabular()[0, 0]
+        return {k: v[0, 0] for k, v in self.core.observe().items()}
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        if seed is not None:
+            self.core.rng = np.random.default_rng(seed)
+        self.core.reset()
+        if self.render_mode == "human":
+            self.render()
+        return self._obs(), {k: v[0] for k, v in _info(self.core).items()}
+
+    def step(self, action):
+        ev = self.core.step(np.array([[int(action)]]))
+        info = {k: v[0] for k, v in _info(self.core, ev).items()}
+        if self.render_mode == "human":
+            self.render()
+        return (self._obs(), float(ev["reward"][0, 0]), bool(ev["terminated"][0]),
+                bool(ev["truncated"][0]), info)
+
+    def heuristic_action(self) -> int:
+        return int(self.core.heuristic_actions()[0, 0])
+
+    def render(self):
+        return _render(self, self.core, 0)
+
+    def close(self):
+        _close_window(self)
+
+
+def _render(face, core: GridWorldCore, world: int):
+    img = core.render_rgb(world)
+    if face.render_mode == "rgb_array":
+        return img
+    if face.render_mode == "human":
+        import pygame
+        if face._window is None:
+            pygame.init()
+            face._window = pygame.display.set_mode(img.shape[1::-1])
+            pygame.display.set_caption("GridWorld")
+        pygame.event.pump()
+        face._window.blit(pygame.surfarray.make_surface(img.swapaxes(0, 1)), (0, 0))
+        pygame.display.flip()
+    return None
+
+
+def _close_window(face):
+    if getattr(face, "_window", None) is not None:
+        import pygame
+        pygame.display.quit()
+        face._window = None
+
+
+# ----------------------------------------------------------------------------- VectorEnv
+class GridWorldVectorEnv(VectorEnv):
+    """B worlds stepped by one core (native Gymnasium VectorEnv, same-step autoreset).
+
+    With number_agents == 1 arrays are (B, ...); with N > 1 every observation, action and
+    reward gets an agent axis (B, N, ...), termination/truncation stay per world, and
+    info["active"] marks the agents present (number_agent_random)."""
+
+    metadata = {"render_modes": ["rgb_array"], "autoreset_mode": AutoresetMode.SAME_STEP}
+
+    def __init__(self, num_envs: int = 1, config: EnvConfig | dict | None = None,
+                 render_mode: str | None = None, **kwargs):
+        cfg = _make_config(config, kwargs)
+        self.core = GridWorldCore(cfg, num_envs)
+        self.num_envs, self.render_mode = num_envs, render_mode
+        agent_space = _agent_observation_space(cfg)
+        self.N = cfg.number_agents
+        if self.N == 1:
+            self.single_observation_space = agent_space
+            self.single_action_space = spaces.Discrete(4)
+        else:
+            self.single_observation_space = _stack_space(agent_space, self.N)
+            self.single_action_space = spaces.MultiDiscrete([4] * self.N)
+        self.observation_space = gym.vector.utils.batch_space(self.single_observation_space, num_envs)
+        self.action_space = gym.vector.utils.batch_space(self.single_action_space, num_envs)
+
+    def configure(self, config=None, **changes) -> None:
+        self.core.configure(config, **changes)
+
+    def _obs(self):
+        core = self.core
+        if core.config.observation == "tabular":
+            obs = core.observe_tabular()
+            return obs[:, 0] if self.N == 1 else obs
+        obs = core.observe()
+        return {k: v[:, 0] for k, v in obs.items()} if self.N == 1 else obs
+
+    def reset(self, *, seed=None, options=None):
+        if seed is not None:
+            self.core.rng = np.random.default_rng(seed)
+        mask = None if not options or "reset_mask" not in options else options["reset_mask"]
+        self.core.reset(mask)
+        return self._obs(), _info(self.core)
+
+    def step(self, actions):
+        a = np.asarray(actions).reshape(self.num_envs, self.N)
+        ev = self.core.step(a)
+        info = _info(self.core, ev)
+        done = ev["terminated"] | ev["truncated"]
+        reward = ev["reward"][:, 0] if self.N == 1 else ev["reward"]
+        if done.any():
+            final_obs = self._obs()
+            info["final_obs"] = final_obs
+            info["final_info"] = {k: v.copy() for k, v in info.items() if k != "final_obs"}
+            info["_final_obs"] = info["_final_info"] = done
+            self.core.reset(done)
+        return self._obs(), reward, ev["terminated"], ev["truncated"], info
+
+    def heuristic_actions(self) -> np.ndarray:
+        h = self.core.heuristic_actions()
+        return h[:, 0] if self.N == 1 else h
+
+    def render(self):
+        return self.core.render_rgb(0) if self.render_mode == "rgb_array" else None
+
+
+def _stack_space(space: spaces.Space, n: int) -> spaces.Space:
+    if isinstance(space, spaces.Dict):
+        return spaces.Dict({k: _stack_space(v, n) for k, v in space.spaces.items()})
+    return spaces.Box(np.broadcast_to(space.low, (n, *space.shape)),
+                      np.broadcast_to(space.high, (n, *space.shape)), (n, *space.shape), space.dtype)
+
+
+# ----------------------------------------------------------------------------- PettingZoo
+def parallel_env(config: EnvConfig | dict | None = None, render_mode: str | None = None, **kwargs):
+    """PettingZoo ParallelEnv with `number_agents` agents in one world."""
+    from pettingzoo import ParallelEnv
+
+    class GridWorldParallelEnv(ParallelEnv):
+        metadata = {"render_modes": ["human", "rgb_array"], "name": "gridworld_v0", "render_fps": 10}
+
+        def __init__(self):
+            cfg = _make_config(config, kwargs)
+            self.core = GridWorldCore(cfg, 1)
+            self.render_mode, self._window = render_mode, None
+            self.possible_agents = [f"agent_{i}" for i in range(cfg.number_agents)]
+            self.agents = []
+            self._obs_space = _agent_observation_space(cfg)
+            self._act_space = spaces.Discrete(4)
+
+        def observation_space(self, agent):
+            return self._obs_space
+
+        def action_space(self, agent):
+            return self._act_space
+
+        def _per_agent(self, values):
+            return {a: values[int(a.split("_")[1])] for a in self.agents}
+
+        def _obs(self):
+            if self.core.config.observation == "tabular":
+                return self._per_agent(self.core.observe_tabular()[0])
+            obs = self.core.observe()
+            return self._per_agent([{k: v[0, i] for k, v in obs.items()} for i in range(self.core.N)])
+
+        def _infos(self, events=None):
+            info = _info(self.core, events)
+            return self._per_agent([{k: (v[0, i] if np.ndim(v) == 2 else v[0]) for k, v in info.items()}
+                                    for i in range(self.core.N)])
+
+        def reset(self, seed=None, options=None):
+            if seed is not None:
+                self.core.rng = np.random.default_rng(seed)
+            self.core.reset()
+            self.agents = [a for a, on in zip(self.possible_agents, self.core.active[0]) if on]
+            return self._obs(), self._infos()
+
+        def step(self, actions):
+            a = np.full((1, self.core.N), WAIT)
+            for name, act in actions.items():  # an agent missing from the dict gives no action
+                a[0, int(name.split("_")[1])] = int(act)
+            ev = self.core.step(a)
+            obs, infos = self._obs(), self._infos(ev)
+            rewards = self._per_agent([float(r) for r in ev["reward"][0]])
+            term = {ag: bool(ev["terminated"][0]) for ag in self.agents}
+            trunc = {ag: bool(ev["truncated"][0]) for ag in self.agents}
+            if ev["terminated"][0] or ev["truncated"][0]:
+                self.agents = []
+            return obs, rewards, term, trunc, infos
+
+        def heuristic_actions(self):
+            return self._per_agent(self.core.heuristic_actions()[0].tolist())
+
+        def render(self):
+            return _render(self, self.core, 0)
+
+        def close(self):
+            _close_window(self)
+
+    return GridWorldParallelEnv()
+
+
+gym.register("GridWorld-v0", entry_point=GridWorldEnv, vector_entry_point=GridWorldVectorEnv,
+             disable_env_checker=True)
+
+
+# ----------------------------------------------------------------------------- benchmark
+def benchmark(seconds: float = 2.0, batch: int = 64) -> list[dict]:
+    """Agent-steps/s with random actions and full observations, and heuristic time per step."""
+    rows = []
+    for size in (10, 20, 30):
+        for agents in (1, 5):
+            core = GridWorldCore(EnvConfig(size=size, number_obstacles=size * size // 10,
+                                           number_agents=agents), batch, seed=0)
+            core.reset()
+            rng = np.random.default_rng(0)
+            actions = rng.integers(0, 4, (256, batch, agents))
+            n, t0 = 0, time.perf_counter()
+            while time.perf_counter() - t0 < seconds:
+                ev = core.step(actions[n % 256])
+                core.observe()
+                done = ev["terminated"] | ev["truncated"]
+                if done.any():
+                    core.reset(done)
+                n += 1
+            sps = n * batch * agents / (time.perf_counter() - t0)
+            core.reset()
+            n, spent, t0 = 0, 0.0, time.perf_counter()
+            while time.perf_counter() - t0 < seconds:  # the heuristic on the states it creates
+                t1 = time.perf_counter()
+                h = core.heuristic_actions()
+                spent += time.perf_counter() - t1
+                ev = core.step(h)
+                done = ev["terminated"] | ev["truncated"]
+                if done.any():
+                    core.reset(done)
+                n += 1
+            rows.append(dict(size=size, agents=agents, batch=batch, agent_steps_per_s=round(sps),
+                             heuristic_ms_per_step=round(1000 * spent / n, 3)))
+    return rows
+
+
+if __name__ == "__main__":
+    if "--bench" in sys.argv:
+        for row in benchmark():
+            print(json.dumps(row), flush=True)
+    else:
+        print(__doc__)
+        print("usage: python gridworld.py --bench")
