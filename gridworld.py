@@ -53,6 +53,7 @@ OBSERVATIONS = ("deep", "tabular")
 FREE_CHARS, BLOCKED_CHARS = set(".GS"), set("@OTW#")
 CODE = np.array([0xFF << (8 * ch) for ch in range(4)], np.uint32)  # channel byte as uint32 bits
 ONE_HOT = np.eye(5, dtype=np.float32)
+FIRST_STEP = np.array([[WAIT, NORTH, WAIT], [WEST, WAIT, EAST], [WAIT, SOUTH, WAIT]])  # by [dy+1, dx+1]
 
 
 # ----------------------------------------------------------------------------- configuration
@@ -330,23 +331,38 @@ def load_dataset(path: str) -> list[Scenario]:
 
 
 # ----------------------------------------------------------------------------- grid helpers
-def _neighbours_any(m: np.ndarray) -> np.ndarray:
-    """4-neighbourhood dilation of a (..., H, W) bool array (cells outside count as False)."""
-    out = np.zeros_like(m)
-    out[..., 1:, :] |= m[..., :-1, :]
-    out[..., :-1, :] |= m[..., 1:, :]
-    out[..., :, 1:] |= m[..., :, :-1]
-    out[..., :, :-1] |= m[..., :, 1:]
+def _pack(m: np.ndarray) -> np.ndarray:
+    """Bool (..., H, W) -> bitboard (..., H, ceil(W/64)) uint64, bit x%64 of word x//64."""
+    packed = np.packbits(m, axis=-1, bitorder="little")
+    out = np.zeros(m.shape[:-1] + (-(-m.shape[-1] // 64) * 8,), np.uint8)
+    out[..., :packed.shape[-1]] = packed
+    return out.view(np.uint64)
+
+
+def _unpack(bits: np.ndarray, W: int) -> np.ndarray:
+    return np.unpackbits(bits.view(np.uint8), axis=-1, count=W, bitorder="little").view(bool)
+
+
+def _dilate(f: np.ndarray) -> np.ndarray:
+    """A bitboard grown by its 4-neighbourhood (cells past the edges fall off)."""
+    out = f.copy()
+    out[..., 1:, :] |= f[..., :-1, :]
+    out[..., :-1, :] |= f[..., 1:, :]
+    out |= f << np.uint64(1)
+    out[..., 1:] |= f[..., :-1] >> np.uint64(63)
+    out |= f >> np.uint64(1)
+    out[..., :-1] |= f[..., 1:] << np.uint64(63)
     return out
 
 
 def _flood(passable: np.ndarray, seed: np.ndarray) -> np.ndarray:
     """Cells of `passable` 4-connected to `seed`, for a batch (B, H, W) at once."""
-    reach = seed & passable
+    pas = _pack(passable)
+    reach = _pack(seed) & pas
     while True:
-        grown = (reach | _neighbours_any(reach)) & passable
-        if (grown == reach).all():
-            return reach
+        grown = _dilate(reach) & pas
+        if np.array_equal(grown, reach):
+            return _unpack(reach, passable.shape[-1])
         reach = grown
 
 
@@ -530,7 +546,23 @@ class GridWorldCore:
             keys[(obstacle | start_mask).reshape(k, -1)] = np.inf
             rank = np.argsort(np.argsort(keys, 1), 1).reshape(k, H, W)
             obstacle |= rank < n_obs[:, None, None]
-            obstacle |= ~_flood(~obstacle, start_mask)  # Algorithm 10: unreachable -> obstacle
+            first = np.zeros_like(start_mask)
+            first[np.arange(k), starts[:, 0, 0], starts[:, 0, 1]] = True
+            obstacle |= ~_flood(~obstacle, first)  # Algorithm 10 from agent 0's start
+            lost = active & obstacle[bidx, starts[..., 0], starts[..., 1]]
+            if lost.any():  # other agents walled off: move them into agent 0's region
+                start_mask &= ~obstacle
+                spare = self._random_cells(~obstacle & ~start_mask, N)
+                starts = np.where(lost[..., None], spare, starts)
+                start_mask[bidx, starts[..., 0], starts[..., 1]] |= active
+            n_free, n_active = (~obstacle).sum((1, 2)), active.sum(1)
+            too_small = (n_free <= n_active) | ((start_mask & ~obstacle).sum((1, 2)) < n_active)
+            if too_small.any():  # region too small for the agents plus a cell to cover: redraw
+                keep = ~too_small
+                if keep.any():
+                    self._init_worlds(w[keep], obstacle[keep], hw[keep], starts[keep], active[keep],
+                                      start_mask[keep], covered0[keep])
+                return self.reset(w[too_small])
         self._init_worlds(w, obstacle, hw, starts, active, start_mask, covered0)
 
     def _random_cells(self, allowed: np.ndarray, n: int) -> np.ndarray:
@@ -639,6 +671,7 @@ class GridWorldCore:
         v["occupied"][left] = False
         v["occupied"][live] = True
         v["covered"][live] = True
+        v["seen"][live] = True
         self.canvas32[left] = CODE[COVERED]  # an agent's cell is always covered and seen
         self.canvas32[live] = CODE[COVERED] | CODE[AGENT]
         self.pos = pos
@@ -782,18 +815,22 @@ class GridWorldCore:
             return lo, np.maximum(hi + 1, lo), empty
 
         worlds, q = np.unique(bk, return_inverse=True)
-        known = self.canvas[worlds, c:c + self.H, c:c + self.W].astype(np.int32)
-        integral = np.zeros((len(worlds), self.H + 1, self.W + 1, 4), np.int32)
-        integral[:, 1:, 1:] = known.cumsum(1).cumsum(2)
+        known = self.canvas[worlds, c:c + self.H, c:c + self.W].transpose(0, 3, 1, 2) > 0
+        below_h = (np.arange(self.H) < np.arange(self.H + 1)[:, None]).astype(np.float32)
+        below_w = (np.arange(self.W) < np.arange(self.W + 1)[:, None]).astype(np.float32)
+        integral = (below_h @ known.astype(np.float32) @ below_w.T).astype(np.int32)  # summed-area table
         (r0, r1, re), (c0, c1, ce) = bins(yk, hk), bins(xk, wk)
         edge = np.array([1, V - 2])
 
-        def box(ra, rb, rempty, ca, cb, cempty):
-            qq = q.reshape((-1,) + (1,) * (ra.ndim - 1))
-            s = integral[qq, rb, cb] - integral[qq, ra, cb] - integral[qq, rb, ca] + integral[qq, ra, ca]
-            area = np.maximum((rb - ra) * (cb - ca), 1)[..., None]
-            out = np.rint(s / area).astype(np.uint8).view(np.uint32)[..., 0]
-            return np.where(rempty | cempty, CODE[OBSTACLE], out)
+        def box(ra, rb, rempty, ca, cb, cempty):  # block means as uint32 cell codes
+            qq = q.reshape((-1,) + (1,) * ra.ndim)
+            ch = np.arange(4).reshape((1, 4) + (1,) * (ra.ndim - 1))
+            ra, rb, ca, cb = (v[:, None] for v in (ra, rb, ca, cb))
+            total = integral[qq, ch, rb, cb] - integral[qq, ch, ra, cb] - integral[qq, ch, rb, ca] \
+                + integral[qq, ch, ra, ca]
+            mean = np.rint(255 * total / np.maximum((rb - ra) * (cb - ca), 1)).astype(np.uint32)
+            code = (mean << (8 * ch).astype(np.uint32)).sum(1, dtype=np.uint32)
+            return np.where(rempty | cempty, CODE[OBSTACLE], code)
 
         rows = box(r0[:, edge, None], r1[:, edge, None], re[:, edge, None],
                    c0[:, None, :], c1[:, None, :], ce[:, None, :])  # (K, 2, V)
@@ -805,7 +842,7 @@ class GridWorldCore:
         mk[:, edge, :] = rows
         mk[:, :, edge] = cols
         maps[far] = mk
-        poi = known[..., POI] > 0
+        poi = known[:, POI]
         row_cum = np.pad(poi.sum(2).cumsum(1), ((0, 0), (1, 0)))
         col_cum = np.pad(poi.sum(1).cumsum(1), ((0, 0), (1, 0)))
         oob[far, :, 0] = np.maximum(beyond[far], 0)
@@ -833,63 +870,70 @@ class GridWorldCore:
         return np.where(blocked[..., 0], -1, run).astype(np.int8)
 
     # --- the navigation heuristic -------------------------------------------------------
-    def heuristic_actions(self) -> np.ndarray:
+    def heuristic_actions(self, random_ties: bool = True) -> np.ndarray:
         """One step along a shortest path to the nearest known point of interest for every
         agent at once, (B, N). Agents claim targets in index order, so no two chase one
-        cell; ties are broken at random. Paths use known free cells; a world with no known
-        point of interest left targets its frontier (known free cells next to unseen ones)."""
+        cell. Ties between equally near targets and between equally short paths are broken
+        at random (§6.3.1: a reinforced random walk), or with random_ties=False by the first
+        target in row-major order and the first move in N, S, W, E order. Paths use known
+        free cells; a world with no known point of interest targets its frontier (known
+        free cells next to unseen ones)."""
         B, N, H, W, c = self.B, self.N, self.H, self.W, self.c
-        inner = (slice(None), slice(c - 1, c + H + 1), slice(c - 1, c + W + 1))  # 1-cell border
-        seen, obstacle = self.seen[inner], self.obstacle[inner]
-        passable = seen & ~obstacle
-        targets = passable & ~self.covered[inner]
-        no_poi = ~targets.any((1, 2))
-        if no_poi.any():
-            targets[no_poi] = (passable & _neighbours_any(~seen))[no_poi]
-        M = B * N
-        b = np.repeat(np.arange(B), N)
-        yx = self.agent_cells().reshape(M, 2) + 1
-        need = np.minimum(np.arange(N) + 1, targets.sum((1, 2))[:, None]).ravel()
+        inner = (slice(None), slice(c, c + H), slice(c, c + W))
+        seen = self.seen[inner]
+        passable = seen & ~self.obstacle[inner]
+        passable, targets = _pack(np.stack([passable, passable & ~self.covered[inner]]))
+        n_targets = np.bitwise_count(targets).sum((1, 2), dtype=np.int64)
+        if (n_targets == 0).any():  # frontier cells, other than those agents stand on
+            frontier = passable & _dilate(~_pack(seen)) & ~_pack(self.occupied[inner])
+            targets[n_targets == 0] = frontier[n_targets == 0]
+            n_targets = np.bitwise_count(targets).sum((1, 2), dtype=np.int64)
+        M, rows = B * N, np.arange(B * N)
+        yx = self.agent_cells().reshape(M, 2)
+        need = np.minimum(np.arange(N) + 1, n_targets[:, None]).ravel()
         need[~self.active.ravel()] = 0
-        pas, tg = passable[b], targets[b]
-        front = np.zeros((M, H + 2, W + 2), bool)
-        front[np.arange(M), yx[:, 0], yx[:, 1]] = True
-        dist = np.where(front, 0, np.iinfo(np.int32).max).astype(np.int32)
-        visited, found, layer = front.copy(), tg[front], 0
-        found = (tg & front).sum((1, 2))
+        b = np.repeat(np.arange(B), N)
+        pas, tg = (passable, targets) if N == 1 else (passable[b], targets[b])
+        front = np.zeros_like(pas)
+        front[rows, yx[:, 0], yx[:, 1] >> 6] = np.uint64(1) << (yx[:, 1] & 63).astype(np.uint64)
+        visited, layers = front.copy(), [front]
+        found = np.zeros(M, np.int64)
         while (found < need).any():  # BFS from every agent until it has reached enough targets
-            front = _neighbours_any(front) & pas & ~visited
+            front = _dilate(front) & pas & ~visited
             if not front.any():
                 break
-            layer += 1
             visited |= front
-            dist[front] = layer
-            found += (tg & front).sum((1, 2))
-        score = np.where(tg & visited, dist + self.rng.random((M, H + 2, W + 2)), np.inf)
-        score = score.reshape(B, N, -1)
-        claimed = np.zeros((B, score.shape[2]), bool)
-        goal = np.full((B, N), -1, np.int64)
+            layers.append(front)
+            found += np.bitwise_count(tg & front).sum((1, 2), dtype=np.int64)
+        layers = np.stack(layers)  # (L, M, H, words): cells at each BFS distance
+        claimed = np.zeros_like(passable)
+        goal = np.zeros((M, 2), np.int64)
+        dist = np.zeros(M, np.int64)
         for i in range(N):  # claims in priority order: a claimed cell is skipped by the rest
-            s = np.where(claimed, np.inf, score[:, i])
-            g = s.argmin(1)
-            has = np.isfinite(s[np.arange(B), g]) & self.active[:, i]
-            claimed[np.flatnonzero(has), g[has]] = True
-            goal[has, i] = g[has]
-        goal = goal.ravel()
-        gy, gx = np.divmod(np.maximum(goal, 0), W + 2)
-        rows = np.arange(M)
-        d = dist[rows, gy, gx]
-        ok = (goal >= 0) & (d > 0)
-        for i in range(int(d[ok].max(initial=1)) - 1, 0, -1):  # walk back to distance 1
-            walk = ok & (d > i)
+            m = np.arange(B) * N + i
+            cand = layers[:, m] & tg[m][None] & ~claimed[None]
+            has = cand.any((2, 3))
+            first = has.argmax(0)
+            cells = _unpack(cand[first, np.arange(B)], W).reshape(B, H * W).cumsum(1)
+            nth = (self.rng.random(B) * cells[:, -1]).astype(np.int64) if random_ties else np.zeros(B, np.int64)
+            gy, gx = np.divmod(np.minimum((cells <= nth[:, None]).sum(1), H * W - 1), W)
+            dist[m] = np.where(has.any(0) & self.active[:, i], first, 0)
+            goal[m] = np.stack([gy, gx], 1)
+            claimed[np.arange(B), gy, gx >> 6] |= (dist[m] > 0) * (np.uint64(1) << (gx & 63).astype(np.uint64))
+        gy, gx = goal[:, 0], goal[:, 1]
+        for i in range(int(dist.max()) - 1, 0, -1):  # walk back from the goal to distance 1
             ny, nx = gy[:, None] + ACTION_DELTAS[:4, 0], gx[:, None] + ACTION_DELTAS[:4, 1]
-            closer = dist[rows[:, None], ny, nx] == i
-            pick = np.argmax(closer * self.rng.random((M, 4)), 1)
+            inside = (ny >= 0) & (ny < H) & (nx >= 0) & (nx < W)
+            ny, nx = np.clip(ny, 0, H - 1), np.clip(nx, 0, W - 1)
+            word = layers[i, rows[:, None], ny, nx >> 6]
+            closer = inside & ((word >> (nx & 63).astype(np.uint64)) & np.uint64(1)).astype(bool)
+            pick = np.argmax(closer * self.rng.random((M, 4)) if random_ties else closer, 1)
+            walk = dist > i
             gy = np.where(walk, ny[rows, pick], gy)
             gx = np.where(walk, nx[rows, pick], gx)
-        move = np.select([gy < yx[:, 0], gy > yx[:, 0], gx < yx[:, 1], gx > yx[:, 1]],
-                         [NORTH, SOUTH, WEST, EAST], WAIT)
-        return np.where(ok, move, WAIT).reshape(B, N)
+        has_goal = dist > 0
+        move = FIRST_STEP[np.where(has_goal, gy - yx[:, 0], 0) + 1, np.where(has_goal, gx - yx[:, 1], 0) + 1]
+        return move.reshape(B, N)
 
     # --- rendering ----------------------------------------------------------------------
     def render_rgb(self, world: int = 0, cell: int = 16) -> np.ndarray:
@@ -930,10 +974,14 @@ def _make_config(config: EnvConfig | dict | None, kwargs: dict) -> EnvConfig:
     return EnvConfig.from_dict({**(config or {}), **kwargs})
 
 
-def _info(core: GridWorldCore, events: dict | None = None) -> dict[str, np.ndarray]:
-    info = core.metrics()
+EVENT_KEYS = ("blocked", "new", "revisit", "waited", "repeated_action")
+
+
+def _info(core: GridWorldCore, events: dict | None = None, metrics: bool = True) -> dict[str, np.ndarray]:
+    """Per-world info: the step's events, the active-agent mask and (optionally) metrics."""
+    info = core.metrics() if metrics else {}
     if events is not None:
-        info.update({k: events[k] for k in ("blocked", "new", "revisit", "waited", "repeated_action")})
+        info.update({k: events[k] for k in EVENT_KEYS})
     info["active"] = core.active.copy()
     return info
 
@@ -1020,7 +1068,10 @@ class GridWorldVectorEnv(VectorEnv):
 
     With number_agents == 1 arrays are (B, ...); with N > 1 every observation, action and
     reward gets an agent axis (B, N, ...), termination/truncation stay per world, and
-    info["active"] marks the agents present (number_agent_random)."""
+    info["active"] marks the agents present (number_agent_random). Each step's info holds
+    the event masks (B, N); when worlds finish, info["final_obs"] and info["final_info"]
+    (episode metrics: overlap, time_save, rho, steps, ...) describe the ended episodes and
+    the returned observation is the next episode's first."""
 
     metadata = {"render_modes": ["rgb_array"], "autoreset_mode": AutoresetMode.SAME_STEP}
 
@@ -1061,13 +1112,12 @@ class GridWorldVectorEnv(VectorEnv):
     def step(self, actions):
         a = np.asarray(actions).reshape(self.num_envs, self.N)
         ev = self.core.step(a)
-        info = _info(self.core, ev)
+        info = _info(self.core, ev, metrics=False)
         done = ev["terminated"] | ev["truncated"]
         reward = ev["reward"][:, 0] if self.N == 1 else ev["reward"]
         if done.any():
-            final_obs = self._obs()
-            info["final_obs"] = final_obs
-            info["final_info"] = {k: v.copy() for k, v in info.items() if k != "final_obs"}
+            info["final_obs"] = self._obs()
+            info["final_info"] = _info(self.core, ev)
             info["_final_obs"] = info["_final_info"] = done
             self.core.reset(done)
         return self._obs(), reward, ev["terminated"], ev["truncated"], info
@@ -1162,44 +1212,55 @@ gym.register("GridWorld-v0", entry_point=GridWorldEnv, vector_entry_point=GridWo
 
 # ----------------------------------------------------------------------------- benchmark
 def benchmark(seconds: float = 2.0, batch: int = 64) -> list[dict]:
-    """Agent-steps/s with random actions and full observations, and heuristic time per step."""
+    """Agent-steps/s of the VectorEnv (random actions, full observations, autoreset) and the
+    heuristic's time per call on the states it creates itself."""
     rows = []
     for size in (10, 20, 30):
         for agents in (1, 5):
-            core = GridWorldCore(EnvConfig(size=size, number_obstacles=size * size // 10,
-                                           number_agents=agents), batch, seed=0)
-            core.reset()
-            rng = np.random.default_rng(0)
-            actions = rng.integers(0, 4, (256, batch, agents))
+            config = EnvConfig(size=size, number_obstacles=size * size // 10, number_agents=agents)
+            env = GridWorldVectorEnv(batch, config)
+            env.reset(seed=0)
+            actions = np.random.default_rng(0).integers(0, 4, (256, batch, agents))
             n, t0 = 0, time.perf_counter()
             while time.perf_counter() - t0 < seconds:
-                ev = core.step(actions[n % 256])
-                core.observe()
-                done = ev["terminated"] | ev["truncated"]
-                if done.any():
-                    core.reset(done)
+                env.step(actions[n % 256])
                 n += 1
             sps = n * batch * agents / (time.perf_counter() - t0)
-            core.reset()
             n, spent, t0 = 0, 0.0, time.perf_counter()
-            while time.perf_counter() - t0 < seconds:  # the heuristic on the states it creates
+            while time.perf_counter() - t0 < seconds:
                 t1 = time.perf_counter()
-                h = core.heuristic_actions()
+                h = env.heuristic_actions()
                 spent += time.perf_counter() - t1
-                ev = core.step(h)
-                done = ev["terminated"] | ev["truncated"]
-                if done.any():
-                    core.reset(done)
+                env.step(h)
                 n += 1
             rows.append(dict(size=size, agents=agents, batch=batch, agent_steps_per_s=round(sps),
-                             heuristic_ms_per_step=round(1000 * spent / n, 3)))
+                             heuristic_ms_per_call=round(1000 * spent / n, 3)))
     return rows
+
+
+def heuristic_overlap(size: int, episodes: int = 64, seed: int = 0, random_ties: bool = True) -> dict:
+    """Mean overlap of the navigation heuristic run to completion on random maps drawn as in
+    §6.5.1.1 (obstacles 0-10% of the cells, random start, unreachable cells filled)."""
+    env = GridWorldVectorEnv(episodes, size=size, number_obstacles=size * size // 10,
+                             obstacles_random=True)
+    env.reset(seed=seed)
+    overlap = np.full(episodes, np.nan)
+    while np.isnan(overlap).any():
+        _, _, _, _, info = env.step(env.core.heuristic_actions(random_ties)[:, 0])
+        if "final_info" in info:
+            first = info["_final_info"] & np.isnan(overlap)
+            overlap[first] = info["final_info"]["overlap"][first]
+    return dict(size=size, episodes=episodes, random_ties=random_ties,
+                heuristic_overlap_mean=round(float(overlap.mean()), 4))
 
 
 if __name__ == "__main__":
     if "--bench" in sys.argv:
         for row in benchmark():
             print(json.dumps(row), flush=True)
+        for size in (5, 10, 15, 20, 25, 30):
+            for random_ties in (True, False):
+                print(json.dumps(heuristic_overlap(size, random_ties=random_ties)), flush=True)
     else:
         print(__doc__)
         print("usage: python gridworld.py --bench")
