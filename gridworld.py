@@ -35,6 +35,8 @@ import json
 import math
 import sys
 import time
+import zipfile
+import zlib
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -123,6 +125,8 @@ class EnvConfig:
         unknown = set(d) - {f.name for f in dataclasses.fields(cls)}
         if unknown:
             raise ValueError(f"unknown environment setting(s): {sorted(unknown)}")
+        if not isinstance(d.get("reward", RewardParams()), (dict, RewardParams)):
+            raise ValueError(f"reward must be a mapping of RewardParams fields, got {d['reward']!r}")
         if isinstance(d.get("reward"), dict):
             bad = set(d["reward"]) - {f.name for f in dataclasses.fields(RewardParams)}
             if bad:
@@ -175,9 +179,13 @@ def load_config(path: str) -> dict[str, EnvConfig]:
             data = yaml.safe_load(f)
     except OSError as e:
         raise ValueError(f"{path}: cannot read config ({e.strerror})") from None
+    except UnicodeDecodeError:
+        raise ValueError(f"{path}: not a text file") from None
     except yaml.YAMLError as e:
         raise ValueError(f"{path}: not valid YAML ({str(e).splitlines()[0]})") from None
     if isinstance(data, list):
+        if not all(isinstance(d, dict) for d in data):
+            raise ValueError(f"{path}: every list item must be a mapping of settings")
         data = {d.get("name", f"env{i + 1}"): d for i, d in enumerate(data)}
     if not isinstance(data, dict) or not all(isinstance(v, dict) for v in data.values()):
         raise ValueError(f"{path}: expected a mapping of environment names to settings")
@@ -211,7 +219,7 @@ def _parse_rows(rows: list[str], path: str, first_line: int) -> Scenario:
     unknown = ~np.isin(chars, list(known))
     if unknown.any():
         y, x = np.argwhere(unknown)[0]
-        raise ValueError(f"{path}: unknown character {chars[y, x]!r} at line {first_line + y}, "
+        raise ValueError(f"{path}: unknown character {str(chars[y, x])!r} at line {first_line + y}, "
                          f"column {x + 1}")
     obstacles = np.isin(chars, list(BLOCKED_CHARS))
     digits = np.char.isdigit(chars)
@@ -233,6 +241,8 @@ def load_map(path: str) -> Scenario:
             lines = f.read().splitlines()
     except OSError as e:
         raise ValueError(f"{path}: cannot read map ({e.strerror})") from None
+    except UnicodeDecodeError:
+        raise ValueError(f"{path}: not a text map file") from None
     if path.endswith(".map"):
         header = [ln.split() for ln in lines[:4]]
         if (len(header) < 4 or header[0][:1] != ["type"] or header[1][:1] != ["height"]
@@ -254,6 +264,8 @@ def load_map(path: str) -> Scenario:
 
 def save_map(path: str, scenario: Scenario) -> None:
     """Write a plain ASCII map (the format `load_map` reads for non-.map files)."""
+    if scenario.starts is not None and len(scenario.starts) > 10:
+        raise ValueError(f"{path}: the ASCII format holds at most 10 agent starts (digits 0-9)")
     chars = np.where(scenario.obstacles, "@", ".").astype("<U1")
     if scenario.covered is not None:
         chars[scenario.covered & ~scenario.obstacles] = "x"
@@ -282,8 +294,6 @@ def check_scenario(s: Scenario, where: str = "map") -> None:
             raise ValueError(f"{where}: start [{y}, {x}] is on an obstacle")
         if len({(int(y), int(x)) for y, x in st}) != len(st):
             raise ValueError(f"{where}: duplicate starts")
-        if len(st) > free.sum():
-            raise ValueError(f"{where}: {len(st)} agents but only {free.sum()} free cells")
     seed = np.zeros_like(free)
     seed[tuple(np.argwhere(free)[0])] = True
     if (_flood(free[None], seed[None])[0] != free).any():
@@ -318,8 +328,12 @@ def load_dataset(path: str) -> list[Scenario]:
         data = np.load(path)
         obstacles, sizes, starts = data["obstacles"], data["sizes"], data["starts"]
         covered = data["covered"] if "covered" in data else np.zeros_like(obstacles)
-    except (OSError, ValueError, KeyError) as e:
+    except (OSError, ValueError, KeyError, zipfile.BadZipFile, zlib.error) as e:
         raise ValueError(f"{path}: not a gridworld dataset ({e})") from None
+    M = len(obstacles)
+    if (obstacles.ndim != 3 or sizes.shape != (M, 2) or starts.ndim != 3 or len(starts) != M
+            or starts.shape[-1:] != (2,) or covered.shape != obstacles.shape):
+        raise ValueError(f"{path}: not a gridworld dataset (arrays of inconsistent shapes)")
     out = []
     for i, (h, w) in enumerate(sizes):
         st = starts[i][starts[i, :, 0] >= 0]
@@ -413,14 +427,15 @@ class GridWorldCore:
         if scenarios is not None:
             H = max(s.obstacles.shape[0] for s in scenarios)
             W = max(s.obstacles.shape[1] for s in scenarios)
+            source = config.dataset_path or config.map_configuration
             if config.load_state and any(s.starts is None for s in scenarios):
-                raise ValueError("load_state needs scenarios with agent starts")
+                raise ValueError(f"{source}: load_state needs scenarios with agent starts")
             if config.load_state:
                 n = max(len(s.starts) for s in scenarios)
             for i, s in enumerate(scenarios):
                 agents = len(s.starts) if config.load_state else n
                 if (~s.obstacles).sum() <= agents:
-                    raise ValueError(f"scenario {i}: {agents} agent(s) leave no free cell to cover")
+                    raise ValueError(f"{source}[{i}]: {agents} agent(s) leave no free cell to cover")
         if config.starting_position is not None and not config.starting_position_random:
             st = np.atleast_2d(np.asarray(config.starting_position))
             if st.ndim != 2 or st.shape[1] != 2 or len(st) != n:
@@ -650,11 +665,10 @@ class GridWorldCore:
         """Advance every world one step. actions: (B, N) ints in 0..4. Returns per-agent event
         masks and rewards (B, N) and per-world terminated/truncated (B,)."""
         cfg, B, N, v = self.config, self.B, self.N, self.views
-        a = np.asarray(actions, np.int64).reshape(B, N)
+        a = np.array(actions, np.int64).reshape(B, N)  # a copy: kept as last_action
         if (a.view(np.uint64) > WAIT).any():  # negative values wrap to huge unsigned ones
             raise ValueError(f"actions must be in 0..4 (N, S, W, E, WAIT), got {np.unique(a).tolist()}")
         if cfg.faulty_agent_step is not None:  # §7.5.3.3: a faulty agent freezes
-            a = a.copy()
             a[self.steps >= cfg.faulty_agent_step, cfg.faulty_agent] = WAIT
         if not self.all_active:
             a = np.where(self.active, a, WAIT)
@@ -1120,6 +1134,7 @@ class GridWorldVectorEnv(VectorEnv):
             info["final_info"] = _info(self.core, ev)
             info["_final_obs"] = info["_final_info"] = done
             self.core.reset(done)
+            info["active"] = self.core.active.copy()  # describes the returned observations
         return self._obs(), reward, ev["terminated"], ev["truncated"], info
 
     def heuristic_actions(self) -> np.ndarray:

@@ -184,8 +184,6 @@ def test_load_map_errors(tmp_path, name, text, problem):
         load_map(p)
 
 
-@pytest.mark.xfail(strict=True, reason="BUG: _parse_rows formats the numpy scalar with !r, so the "
-                   "message reads \"unknown character np.str_('z')\" instead of \"'z'\"")
 def test_unknown_character_message_is_plain(tmp_path):
     p = write(tmp_path, "plain.txt", "...\n..z\n")
     with raises_one_line(ValueError, re.escape(p) + ": unknown character 'z' at line 2, column 3"):
@@ -200,8 +198,6 @@ def test_load_map_missing_file(tmp_path):
         load_map(str(tmp_path))  # a directory
 
 
-@pytest.mark.xfail(strict=True, reason="BUG: load_map lets UnicodeDecodeError escape for a non-text "
-                   "file; its message does not name the file")
 @pytest.mark.parametrize("name", ["binary.map", "binary.txt"])
 def test_load_map_binary_file_names_file(tmp_path, name):
     p = tmp_path / name
@@ -237,8 +233,6 @@ def test_more_agents_than_free_cells(tmp_path):
         EnvConfig(size=2, number_agents=4).validate()
 
 
-@pytest.mark.xfail(strict=True, reason="BUG: GridWorldCore.configure raises 'scenario 0: N agent(s) "
-                   "leave no free cell to cover' without naming the map file")
 def test_more_agents_than_free_cells_names_file(tmp_path):
     p = write(tmp_path, "tiny3.txt", "..\n.@\n")
     with raises_one_line(ValueError, re.escape(p)):
@@ -251,8 +245,6 @@ def test_load_state_needs_starts(tmp_path):
         GridWorldCore(EnvConfig(map_configuration=p, load_state=True))
 
 
-@pytest.mark.xfail(strict=True, reason="BUG: save_map writes str(i) into a '<U1' array, so agent 10+ "
-                   "is truncated to one digit and the file cannot be read back")
 def test_save_map_more_than_ten_agents(tmp_path):
     st = np.array([[0, i] for i in range(11)])
     s = Scenario(np.zeros((2, 11), bool), st)
@@ -363,12 +355,7 @@ def test_dataset_errors(tmp_path):
         load_dataset(q)
 
 
-@pytest.mark.parametrize("how", [
-    pytest.param("truncated", marks=pytest.mark.xfail(
-        strict=True, reason="BUG: load_dataset lets zipfile.BadZipFile escape (not caught)")),
-    pytest.param("bitflip", marks=pytest.mark.xfail(
-        strict=True, reason="BUG: load_dataset lets zlib.error escape from a damaged member")),
-])
+@pytest.mark.parametrize("how", ["truncated", "bitflip"])
 def test_dataset_corrupt_npz(tmp_path, how):
     good = tmp_path / "good.npz"
     save_dataset(str(good), _scenarios(tmp_path))
@@ -523,16 +510,12 @@ def test_load_config_missing_file(tmp_path):
         load_config(p)
 
 
-@pytest.mark.xfail(strict=True, reason="BUG: load_config's list form calls d.get on each item; a "
-                   "non-mapping item raises AttributeError instead of ValueError")
 def test_load_config_list_of_scalars(tmp_path):
     p = write(tmp_path, "scalars.yaml", "- 1\n- 2\n")
     with raises_one_line(ValueError, re.escape(p)):
         load_config(p)
 
 
-@pytest.mark.xfail(strict=True, reason="BUG: a non-mapping 'reward' value reaches validate(), which "
-                   "raises AttributeError ('int' object has no attribute 'structure')")
 def test_load_config_reward_not_mapping(tmp_path):
     p = write(tmp_path, "reward.yaml", "a:\n  reward: 5\n")
     with raises_one_line(ValueError, re.escape(p)):
@@ -705,10 +688,6 @@ def test_vector_autoreset_same_step():
     assert seen_term and seen_trunc
 
 
-@pytest.mark.xfail(strict=True, reason="BUG: in same-step autoreset GridWorldVectorEnv.step returns the "
-                   "old episode's info at the top level (Gymnasium's SyncVectorEnv returns the reset "
-                   "info there, the step info only in final_info), so info['active']/['steps'] do "
-                   "not describe the returned obs")
 def test_vector_autoreset_top_level_info_is_reset_info():
     # all worlds truncate together after 8 WAIT steps; number_agent_random changes who is active
     v = GridWorldVectorEnv(num_envs=6, size=4, number_agents=3, number_agent_random=True,
@@ -726,9 +705,6 @@ def test_vector_autoreset_top_level_info_is_reset_info():
         np.testing.assert_array_equal(info["steps"], 0)
 
 
-@pytest.mark.xfail(strict=True, reason="BUG: GridWorldCore.step keeps `self.last_action = a`, a view "
-                   "of the caller's int64 actions array; a later reset writes WAIT into it and a "
-                   "caller reusing its buffer changes last_action / repeated_action")
 def test_step_does_not_alias_caller_actions():
     v = GridWorldVectorEnv(num_envs=1, size=3, battery_factor=0.5)  # 5 steps of battery
     v.reset(seed=0)
