@@ -611,7 +611,7 @@ class GridWorldCore:
             covered[np.flatnonzero(none_left), cell[:, 0], cell[:, 1]] = False
         inner = (w, slice(c, c + H), slice(c, c + W))
         self.obstacle[inner], self.covered[inner], self.occupied[inner] = obstacle, covered, start_mask
-        self.seen[inner] = obstacle if cfg.sensor != "full" else True
+        self.seen[inner] = cfg.sensor == "full"
         self.seen[inner] |= ~((np.arange(H)[:, None] < hw[:, None, None, 0]) &
                               (np.arange(W) < hw[:, None, None, 1]))  # out of map: known obstacle
         self.hw[w] = hw
@@ -886,12 +886,14 @@ class GridWorldCore:
     # --- the navigation heuristic -------------------------------------------------------
     def heuristic_actions(self, random_ties: bool = True) -> np.ndarray:
         """One step along a shortest path to the nearest known point of interest for every
-        agent at once, (B, N). Agents claim targets in index order, so no two chase one
-        cell. Ties between equally near targets and between equally short paths are broken
-        at random (§6.3.1: a reinforced random walk), or with random_ties=False by the first
-        target in row-major order and the first move in N, S, W, E order. Paths use known
-        free cells; a world with no known point of interest targets its frontier (known
-        free cells next to unseen ones)."""
+        agent at once, (B, N). With several agents, targets are claimed greedily by distance
+        (the nearest agent-target pair first, the lower index on a tie), so no two agents chase
+        one cell and a contested cell goes to the agent with the shorter path. Ties between
+        equally near targets and equally short paths are broken at random (§6.3.1: a
+        reinforced random walk), or with random_ties=False by the first target in row-major
+        order and the first move in N, S, W, E order. Paths use known free cells; a world with
+        no known point of interest targets its frontier (known free cells next to unseen
+        ones). An agent left without a target waits (WAIT)."""
         B, N, H, W, c = self.B, self.N, self.H, self.W, self.c
         inner = (slice(None), slice(c, c + H), slice(c, c + W))
         seen = self.seen[inner]
@@ -904,8 +906,7 @@ class GridWorldCore:
             n_targets = np.bitwise_count(targets).sum((1, 2), dtype=np.int64)
         M, rows = B * N, np.arange(B * N)
         yx = self.agent_cells().reshape(M, 2)
-        need = np.minimum(np.arange(N) + 1, n_targets[:, None]).ravel()
-        need[~self.active.ravel()] = 0
+        need = np.where(self.active, np.minimum(N, n_targets)[:, None], 0).ravel()
         b = np.repeat(np.arange(B), N)
         pas, tg = (passable, targets) if N == 1 else (passable[b], targets[b])
         front = np.zeros_like(pas)
@@ -920,20 +921,36 @@ class GridWorldCore:
             layers.append(front)
             found += np.bitwise_count(tg & front).sum((1, 2), dtype=np.int64)
         layers = np.stack(layers)  # (L, M, H, words): cells at each BFS distance
-        claimed = np.zeros_like(passable)
-        goal = np.zeros((M, 2), np.int64)
-        dist = np.zeros(M, np.int64)
-        for i in range(N):  # claims in priority order: a claimed cell is skipped by the rest
-            m = np.arange(B) * N + i
-            cand = layers[:, m] & tg[m][None] & ~claimed[None]
-            has = cand.any((2, 3))
-            first = has.argmax(0)
-            cells = _unpack(cand[first, np.arange(B)], W).reshape(B, H * W).cumsum(1)
-            nth = (self.rng.random(B) * cells[:, -1]).astype(np.int64) if random_ties else np.zeros(B, np.int64)
-            gy, gx = np.divmod(np.minimum((cells <= nth[:, None]).sum(1), H * W - 1), W)
-            dist[m] = np.where(has.any(0) & self.active[:, i], first, 0)
-            goal[m] = np.stack([gy, gx], 1)
-            claimed[np.arange(B), gy, gx >> 6] |= (dist[m] > 0) * (np.uint64(1) << (gx & 63).astype(np.uint64))
+        # every target each agent reached, as (agent, distance, cell); its N nearest are kept
+        hits = layers & tg[None]
+        l, m, y, word = np.nonzero(hits)
+        bits = np.unpackbits(hits[l, m, y, word].view(np.uint8).reshape(-1, 8), axis=1,
+                             bitorder="little")
+        k, bit = np.nonzero(bits)
+        l, m, cell = l[k], m[k], y[k] * W + word[k] * 64 + bit
+        tie = self.rng.random(len(l)) if random_ties else cell / (H * W)
+        order = np.lexsort((l + tie, m))
+        l, m, cell = l[order], m[order], cell[order]
+        rank = np.arange(len(m)) - np.searchsorted(m, m)
+        near = rank < N
+        cand_dist = np.full((M, N), np.inf)
+        cand_cell = np.full((M, N), -1)
+        cand_dist[m[near], rank[near]], cand_cell[m[near], rank[near]] = l[near], cell[near]
+        cand_dist, cand_cell = cand_dist.reshape(B, N * N), cand_cell.reshape(B, N * N)
+        goal = np.full((B, N), -1)
+        dist = np.zeros((B, N), np.int64)
+        for _ in range(N):  # claims: the nearest free (agent, target) pair of each world first
+            taken = (cand_cell[:, :, None] == goal[:, None, :]).any(-1) | (goal >= 0).repeat(N, 1)
+            d = np.where(taken, np.inf, cand_dist)
+            pair = d.argmin(1)
+            ok = np.flatnonzero(np.isfinite(d[np.arange(B), pair]))
+            if len(ok) == 0:
+                break
+            agent = pair[ok] // N
+            goal[ok, agent] = cand_cell[ok, pair[ok]]
+            dist[ok, agent] = cand_dist[ok, pair[ok]]
+        goal, dist = np.maximum(goal, 0).ravel(), dist.ravel()
+        goal = np.stack(np.divmod(goal, W), 1)
         gy, gx = goal[:, 0], goal[:, 1]
         for i in range(int(dist.max()) - 1, 0, -1):  # walk back from the goal to distance 1
             ny, nx = gy[:, None] + ACTION_DELTAS[:4, 0], gx[:, None] + ACTION_DELTAS[:4, 1]
