@@ -114,6 +114,7 @@ class EnvConfig:
     faulty_agent_step: int | None = None
     faulty_agent: int = -1
     view_size: int = 41
+    edge_compression: bool = True
     observation: str = "deep"
     reward: RewardParams = field(default_factory=RewardParams)
     name: str = ""
@@ -451,6 +452,11 @@ class GridWorldCore:
         old = None if first else (self.agent_cells(), self.hw.copy())
         self.config, self.scenarios, self.next_scenario = config, scenarios, 0
         self.V = config.view_size
+        rp = config.reward  # (event, weight) pairs with a non-zero weight, looked up once
+        self.reward_terms = tuple(
+            tuple((name, np.float32(getattr(rp, name))) for name in names if getattr(rp, name))
+            for names in (("repeated_action", "finished", "finished_line", "wall_adjacent"),
+                          ("blocked", "revisit", "waited", "timeout")))
         self.los_offsets, self.los_between = _line_of_sight_table(config.sensor_range)
         if grow:
             self._allocate(max(H, self.H), max(W, self.W), n, old)
@@ -666,16 +672,18 @@ class GridWorldCore:
         masks and rewards (B, N) and per-world terminated/truncated (B,)."""
         cfg, B, N, v = self.config, self.B, self.N, self.views
         a = np.array(actions, np.int64).reshape(B, N)  # a copy: kept as last_action
-        if (a.view(np.uint64) > WAIT).any():  # negative values wrap to huge unsigned ones
+        if a.view(np.uint64).max() > WAIT:  # as unsigned, a negative action is out of range too
             raise ValueError(f"actions must be in 0..4 (N, S, W, E, WAIT), got {np.unique(a).tolist()}")
-        if cfg.faulty_agent_step is not None:  # §7.5.3.3: a faulty agent freezes
-            a[self.steps >= cfg.faulty_agent_step, cfg.faulty_agent] = WAIT
-        if not self.all_active:
-            a = np.where(self.active, a, WAIT)
+        delta = self.delta[a]
+        if cfg.faulty_agent_step is not None or not self.all_active:
+            if cfg.faulty_agent_step is not None:  # §7.5.3.3: a faulty agent freezes
+                a[self.steps >= cfg.faulty_agent_step, cfg.faulty_agent] = WAIT
+            a[~self.active] = WAIT
+            delta = self.delta[a]
         waited = a == WAIT
         moving = ~waited
         old = self.pos
-        tgt = old + self.delta[a]
+        tgt = old + delta
         moves = moving & ~v["obstacle"][tgt]
         if N > 1:
             moves = self._resolve_conflicts(old, tgt, moves)
@@ -743,27 +751,23 @@ class GridWorldCore:
         """Reward of every agent from its events (eq. 6.13; eqs. 7.3-7.5; §5.3.4)."""
         rp = self.config.reward
         new = ev["new"]
-        r = np.float32(rp.new_cell) * new
+        r = new * np.float32(rp.new_cell)
         if self.N > 1 and rp.structure != "competitive":
             n_active = self.active.sum(1, keepdims=True)
-            several = n_active > 1
             share = (new.sum(1, keepdims=True) - new) / np.maximum(n_active - 1, 1)  # eq. 7.4
             own = 1.0 - rp.gain if rp.structure == "size_invariant" else 1.0  # eq. 7.5
-            r = np.where(several, own * r + rp.gain * rp.new_cell * share, r)
-        for name in ("repeated_action", "finished", "finished_line", "wall_adjacent"):
-            if getattr(rp, name):
-                r = r + np.float32(getattr(rp, name)) * ev[name]
+            r = np.where(n_active > 1, own * r + rp.gain * rp.new_cell * share, r).astype(np.float32)
+        bonus, penalty = self.reward_terms
+        for name, weight in bonus:
+            r += weight * ev[name]
         if rp.positive_only_if_new:
-            r = np.where(ev["new"], r, np.minimum(r, 0))
-        r = r + np.float32(rp.time_step)
-        for name in ("blocked", "revisit", "waited", "timeout"):
-            if getattr(rp, name):
-                r = r + np.float32(getattr(rp, name)) * ev[name]
+            r = np.where(new, r, np.minimum(r, 0))
+        r += np.float32(rp.time_step)
+        for name, weight in penalty:
+            r += weight * ev[name]
         if rp.scale_by_area:
-            r = r / (self.hw[:, 0:1] * self.hw[:, 1:2])
-        if not self.all_active:
-            r = np.where(self.active, r, 0.0)
-        return r.astype(np.float32)
+            r = (r / (self.hw[:, 0:1] * self.hw[:, 1:2])).astype(np.float32)
+        return r if self.all_active else np.where(self.active, r, np.float32(0))
 
     def recharge(self, worlds, factor: float = 2.0) -> None:
         """Give worlds a new battery of factor * h * w steps (partial reset, §6.4.2.2)."""
@@ -815,9 +819,32 @@ class GridWorldCore:
             return maps
         maps = maps.copy()
         bk, yk, xk, hk, wk = b[far], y[far], x[far], h[far], w[far]
+        worlds, q = np.unique(bk, return_inverse=True)
+        known = self.canvas[worlds, c:c + self.H, c:c + self.W].transpose(0, 3, 1, 2) > 0
+        mk = maps[far]
+        mk[:, [0, V - 1], :] = CODE[OBSTACLE]
+        mk[:, :, [0, V - 1]] = CODE[OBSTACLE]
+        if self.config.edge_compression:
+            self._average_edges(mk, known, q, yk, xk, hk, wk)
+        maps[far] = mk
+        poi = known[:, POI]
+        row_cum = np.pad(poi.sum(2).cumsum(1), ((0, 0), (1, 0)))
+        col_cum = np.pad(poi.sum(1).cumsum(1), ((0, 0), (1, 0)))
+        oob[far, :, 0] = np.maximum(beyond[far], 0)
+        oob[far, :, 1] = np.stack([
+            row_cum[q, np.clip(yk - R, 0, None)],
+            row_cum[q, hk] - row_cum[q, np.minimum(yk + R + 1, hk)],
+            col_cum[q, np.clip(xk - R, 0, None)],
+            col_cum[q, wk] - col_cum[q, np.minimum(xk + R + 1, wk)]], 1)
+        return maps
+
+    def _average_edges(self, mk, known, q, y, x, h, w) -> None:
+        """Rows/cols 1 and V-2 of windows mk (K, V, V) := block means of the known map
+        (worlds known[q]) over everything from offset ±R outward, via a summed-area table."""
+        V, c, R = self.V, self.c, self.V // 2 - 1
         d = np.arange(V) - c
 
-        def bins(p, n):  # inclusive map row (col) range shown at each window index
+        def bins(p, n):  # [lo, hi) map rows (cols) shown at each window index, and emptiness
             lo = p[:, None] + d
             hi = lo.copy()
             lo[:, 1], hi[:, 1] = 0, p - R
@@ -828,12 +855,10 @@ class GridWorldCore:
             lo = np.minimum(lo, n[:, None])
             return lo, np.maximum(hi + 1, lo), empty
 
-        worlds, q = np.unique(bk, return_inverse=True)
-        known = self.canvas[worlds, c:c + self.H, c:c + self.W].transpose(0, 3, 1, 2) > 0
         below_h = (np.arange(self.H) < np.arange(self.H + 1)[:, None]).astype(np.float32)
         below_w = (np.arange(self.W) < np.arange(self.W + 1)[:, None]).astype(np.float32)
-        integral = (below_h @ known.astype(np.float32) @ below_w.T).astype(np.int32)  # summed-area table
-        (r0, r1, re), (c0, c1, ce) = bins(yk, hk), bins(xk, wk)
+        integral = (below_h @ known.astype(np.float32) @ below_w.T).astype(np.int32)
+        (r0, r1, re), (c0, c1, ce) = bins(y, h), bins(x, w)
         edge = np.array([1, V - 2])
 
         def box(ra, rb, rempty, ca, cb, cempty):  # block means as uint32 cell codes
@@ -846,26 +871,10 @@ class GridWorldCore:
             code = (mean << (8 * ch).astype(np.uint32)).sum(1, dtype=np.uint32)
             return np.where(rempty | cempty, CODE[OBSTACLE], code)
 
-        rows = box(r0[:, edge, None], r1[:, edge, None], re[:, edge, None],
-                   c0[:, None, :], c1[:, None, :], ce[:, None, :])  # (K, 2, V)
-        cols = box(r0[:, :, None], r1[:, :, None], re[:, :, None],
-                   c0[:, None, edge], c1[:, None, edge], ce[:, None, edge])  # (K, V, 2)
-        mk = maps[far]
-        mk[:, [0, V - 1], :] = CODE[OBSTACLE]
-        mk[:, :, [0, V - 1]] = CODE[OBSTACLE]
-        mk[:, edge, :] = rows
-        mk[:, :, edge] = cols
-        maps[far] = mk
-        poi = known[:, POI]
-        row_cum = np.pad(poi.sum(2).cumsum(1), ((0, 0), (1, 0)))
-        col_cum = np.pad(poi.sum(1).cumsum(1), ((0, 0), (1, 0)))
-        oob[far, :, 0] = np.maximum(beyond[far], 0)
-        oob[far, :, 1] = np.stack([
-            row_cum[q, np.clip(yk - R, 0, None)],
-            row_cum[q, hk] - row_cum[q, np.minimum(yk + R + 1, hk)],
-            col_cum[q, np.clip(xk - R, 0, None)],
-            col_cum[q, wk] - col_cum[q, np.minimum(xk + R + 1, wk)]], 1)
-        return maps
+        mk[:, edge, :] = box(r0[:, edge, None], r1[:, edge, None], re[:, edge, None],
+                             c0[:, None, :], c1[:, None, :], ce[:, None, :])
+        mk[:, :, edge] = box(r0[:, :, None], r1[:, :, None], re[:, :, None],
+                             c0[:, None, edge], c1[:, None, edge], ce[:, None, edge])
 
     def observe_tabular(self) -> np.ndarray:
         """§5.3.1 readings r' for every agent, (B, N, 8) int8 in the order N, S, E, W, NE, NW,
@@ -920,6 +929,7 @@ class GridWorldCore:
             visited |= front
             layers.append(front)
             found += np.bitwise_count(tg & front).sum((1, 2), dtype=np.int64)
+            front = front * (found < need)[:, None, None]  # agents with enough targets stop
         layers = np.stack(layers)  # (L, M, H, words): cells at each BFS distance
         # every target each agent reached, as (agent, distance, cell); its N nearest are kept
         hits = layers & tg[None]
@@ -955,7 +965,7 @@ class GridWorldCore:
         for i in range(int(dist.max()) - 1, 0, -1):  # walk back from the goal to distance 1
             ny, nx = gy[:, None] + ACTION_DELTAS[:4, 0], gx[:, None] + ACTION_DELTAS[:4, 1]
             inside = (ny >= 0) & (ny < H) & (nx >= 0) & (nx < W)
-            ny, nx = np.clip(ny, 0, H - 1), np.clip(nx, 0, W - 1)
+            ny, nx = ny % H, nx % W  # wrapped cells are masked by `inside`
             word = layers[i, rows[:, None], ny, nx >> 6]
             closer = inside & ((word >> (nx & 63).astype(np.uint64)) & np.uint64(1)).astype(bool)
             pick = np.argmax(closer * self.rng.random((M, 4)) if random_ties else closer, 1)

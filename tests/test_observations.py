@@ -832,3 +832,18 @@ def test_heuristic_wide_map(tmp_path):
         if ev["terminated"].all():
             break
     assert ev["terminated"].all() and not (~km.obst & ~km.cov).any()
+
+
+def test_edge_compression_off_keeps_plain_edges_and_out_of_bounds():
+    kw = dict(size=30, number_obstacles=60, starting_position=[[0, 0]], starting_position_random=False)
+    on = gw.GridWorldCore(gw.EnvConfig(**kw), 1, seed=3)
+    off = gw.GridWorldCore(gw.EnvConfig(edge_compression=False, **kw), 1, seed=3)
+    on.reset(), off.reset()
+    a, b = on.observe(), off.observe()
+    assert (a["out_of_bounds"] == b["out_of_bounds"]).all()
+    assert b["out_of_bounds"][0, 0, 1, 0] == 29 - 19  # ten rows beyond the core to the south
+    c = off.c
+    plain = off.canvas[0, c + 19, c - 20:c + 21].T  # map row 19, window row 39, not averaged
+    assert (b["map"][0, 0, :, 39, 1:40] == plain[:, 1:40]).all()
+    assert (a["map"][0, 0, :, 39] != b["map"][0, 0, :, 39]).any()  # averaging changed it
+    assert (b["map"][0, 0, 2, 40] == 255).all() and (b["map"][0, 0, 2, :, 40] == 255).all()
