@@ -53,7 +53,7 @@ SENSORS = ("full", "camera", "lidar")
 STRUCTURES = ("competitive", "cooperative", "size_invariant")
 OBSERVATIONS = ("deep", "tabular")
 FREE_CHARS, BLOCKED_CHARS = set(".GS"), set("@OTW#")
-CODE = np.array([0xFF << (8 * ch) for ch in range(4)], np.uint32)  # channel byte as uint32 bits
+CODE = np.array([0xFF << (8 * ch) for ch in range(4)], np.uint32)  # channel bytes of a cell (little-endian)
 ONE_HOT = np.eye(5, dtype=np.float32)
 FIRST_STEP = np.array([[WAIT, NORTH, WAIT], [WEST, WAIT, EAST], [WAIT, SOUTH, WAIT]])  # by [dy+1, dx+1]
 
@@ -495,7 +495,9 @@ class GridWorldCore:
                 setattr(self, k, np.zeros(B, np.int64))
             self.all_active, self.any_large = True, False
         else:
-            self.pos = self._flat(np.arange(B)[:, None], old[0][..., 0], old[0][..., 1])
+            b = np.arange(B)[:, None]
+            self.pos = np.where(self.active, self._flat(b, old[0][..., 0], old[0][..., 1]),
+                                self._flat(b, -c, -c))  # absent agents stay parked
             self._paint_worlds(np.arange(B))
 
     def _flat(self, b, y, x) -> np.ndarray:
@@ -571,13 +573,15 @@ class GridWorldCore:
             first[np.arange(k), starts[:, 0, 0], starts[:, 0, 1]] = True
             obstacle |= ~_flood(~obstacle, first)  # Algorithm 10 from agent 0's start
             lost = active & obstacle[bidx, starts[..., 0], starts[..., 1]]
-            if lost.any():  # other agents walled off: move them into agent 0's region
+            fixed_starts = not cfg.starting_position_random and cfg.starting_position is not None
+            if lost.any() and not fixed_starts:  # agents walled off: move them to agent 0's region
                 start_mask &= ~obstacle
                 spare = self._random_cells(~obstacle & ~start_mask, N)
                 starts = np.where(lost[..., None], spare, starts)
                 start_mask[bidx, starts[..., 0], starts[..., 1]] |= active
             n_free, n_active = (~obstacle).sum((1, 2)), active.sum(1)
             too_small = (n_free <= n_active) | ((start_mask & ~obstacle).sum((1, 2)) < n_active)
+            too_small |= lost.any(1) if fixed_starts else False
             if too_small.any():  # region too small for the agents plus a cell to cover: redraw
                 keep = ~too_small
                 if keep.any():
