@@ -460,6 +460,9 @@ class GridWorldCore:
         self.los_offsets, self.los_between = _line_of_sight_table(config.sensor_range)
         if grow:
             self._allocate(max(H, self.H), max(W, self.W), n, old)
+        H, W, n = self.H, self.W, self.N
+        self.pool = [np.zeros((0, H, W), bool), np.zeros((0, 2), np.int64), np.zeros((0, n, 2), np.int64),
+                     np.zeros((0, n), bool), np.zeros((0, H, W), bool)]  # drawn random maps
 
     def _allocate(self, H: int, W: int, N: int, old) -> None:
         """(Re)build the canvas-coordinate arrays, keeping the worlds in progress."""
@@ -521,74 +524,95 @@ class GridWorldCore:
         if len(w) == 0:
             return
         k, H, W, N = len(w), self.H, self.W, self.N
-        bidx = np.arange(k)[:, None]
-        n_agents = rng.integers(1, N + 1, k) if cfg.number_agent_random else np.full(k, N)
-        active = np.arange(N)[None, :] < n_agents[:, None]
-        starts = np.zeros((k, N, 2), np.int64)
+        if self.scenarios is None:
+            while len(self.pool[0]) < k:  # maps are drawn in batches: one reset is cheap
+                self._draw_maps(max(64, k))
+            drawn = [a[:k] for a in self.pool]
+            self.pool = [a[k:] for a in self.pool]
+            return self._init_worlds(w, *drawn, np.zeros((k, H, W), bool))
+        idx = (rng.integers(0, len(self.scenarios), k) if cfg.load_random else
+               (self.next_scenario + np.arange(k)) % len(self.scenarios))
+        self.next_scenario = int((self.next_scenario + k) % len(self.scenarios))
+        obstacle = np.ones((k, H, W), bool)
         covered0 = np.zeros((k, H, W), bool)
-        loaded_starts = cfg.load_state and self.scenarios is not None
-        if self.scenarios is not None:
-            idx = (rng.integers(0, len(self.scenarios), k) if cfg.load_random else
-                   (self.next_scenario + np.arange(k)) % len(self.scenarios))
-            self.next_scenario = int((self.next_scenario + k) % len(self.scenarios))
-            obstacle = np.ones((k, H, W), bool)
-            hw = np.zeros((k, 2), np.int64)
-            for j, i in enumerate(idx):  # one array copy per loaded map
-                s = self.scenarios[i]
-                h_, w_ = s.obstacles.shape
-                obstacle[j, :h_, :w_], hw[j] = s.obstacles, (h_, w_)
-                if loaded_starts:
-                    starts[j, :len(s.starts)] = s.starts
-                    active[j] = np.arange(N) < len(s.starts)
-                    if s.covered is not None:
-                        covered0[j, :h_, :w_] = s.covered
-        else:
-            side = rng.integers(cfg.min_size, cfg.size + 1, k) if cfg.random_size else np.full(k, cfg.size)
-            hw = np.stack([side, side], 1)
-            obstacle = ~((np.arange(H)[None, :, None] < side[:, None, None]) &
-                         (np.arange(W)[None, None, :] < side[:, None, None]))
-        if not loaded_starts:
-            if cfg.starting_position_random or cfg.starting_position is None:
-                starts = self._random_cells(~obstacle, N)
-            else:
-                st = np.atleast_2d(np.asarray(cfg.starting_position, np.int64))
-                ok = (st >= 0).all(1)[None] & (st[None, :, 0] < hw[:, :1]) & (st[None, :, 1] < hw[:, 1:])
-                ok &= ~obstacle[bidx, np.clip(st[:, 0], 0, H - 1), np.clip(st[:, 1], 0, W - 1)]
-                if not ok.all():
-                    raise ValueError(f"starting_position {st.tolist()} is out of the map or on an obstacle")
-                if len({tuple(p) for p in st.tolist()}) != len(st):
-                    raise ValueError(f"duplicate starting positions {st.tolist()}")
-                starts[:] = st[None]
+        hw = np.zeros((k, 2), np.int64)
+        starts = np.zeros((k, N, 2), np.int64)
+        active = self._active(k)
+        for j, i in enumerate(idx):  # one array copy per loaded map
+            s = self.scenarios[i]
+            h_, w_ = s.obstacles.shape
+            obstacle[j, :h_, :w_], hw[j] = s.obstacles, (h_, w_)
+            if cfg.load_state:
+                starts[j, :len(s.starts)] = s.starts
+                active[j] = np.arange(N) < len(s.starts)
+                if s.covered is not None:
+                    covered0[j, :h_, :w_] = s.covered
+        if not cfg.load_state:
+            starts = self._starts(obstacle, hw)
+        start_mask = np.zeros((k, H, W), bool)
+        start_mask[np.arange(k)[:, None], starts[..., 0], starts[..., 1]] = active
+        self._init_worlds(w, obstacle, hw, starts, active, start_mask, covered0)
+
+    def seed(self, seed) -> None:
+        """Restart the random stream (and drop maps drawn from the old one)."""
+        self.rng = np.random.default_rng(seed)
+        self.pool = [p[:0] for p in self.pool]
+
+    def _active(self, k: int) -> np.ndarray:
+        """Which of the N agent slots play in k new episodes (§7.4.2.1: a random count)."""
+        n = self.rng.integers(1, self.N + 1, k) if self.config.number_agent_random else np.full(k, self.N)
+        return np.arange(self.N) < n[:, None]
+
+    def _starts(self, obstacle: np.ndarray, hw: np.ndarray) -> np.ndarray:
+        """Agent starts (k, N, 2): the configured ones (checked) or distinct random free cells."""
+        cfg, (k, H, W) = self.config, obstacle.shape
+        if cfg.starting_position_random or cfg.starting_position is None:
+            return self._random_cells(~obstacle, self.N)
+        st = np.atleast_2d(np.asarray(cfg.starting_position, np.int64))
+        ok = (st >= 0).all(1)[None] & (st[None, :, 0] < hw[:, :1]) & (st[None, :, 1] < hw[:, 1:])
+        ok &= ~obstacle[np.arange(k)[:, None], np.clip(st[:, 0], 0, H - 1), np.clip(st[:, 1], 0, W - 1)]
+        if not ok.all():
+            raise ValueError(f"starting_position {st.tolist()} is out of the map or on an obstacle")
+        if len({tuple(p) for p in st.tolist()}) != len(st):
+            raise ValueError(f"duplicate starting positions {st.tolist()}")
+        return np.broadcast_to(st, (k, self.N, 2)).copy()
+
+    def _draw_maps(self, k: int) -> None:
+        """Algorithm 9 for k random worlds at once: size, starts, obstacles, then Algorithm 10
+        (cells unreachable from agent 0 become obstacles); adds the usable ones to the pool."""
+        cfg, rng, H, W, N = self.config, self.rng, self.H, self.W, self.N
+        bidx = np.arange(k)[:, None]
+        active = self._active(k)
+        side = rng.integers(cfg.min_size, cfg.size + 1, k) if cfg.random_size else np.full(k, cfg.size)
+        hw = np.stack([side, side], 1)
+        obstacle = ~((np.arange(H)[None, :, None] < side[:, None, None]) &
+                     (np.arange(W)[None, None, :] < side[:, None, None]))
+        starts = self._starts(obstacle, hw)
         start_mask = np.zeros((k, H, W), bool)
         start_mask[bidx, starts[..., 0], starts[..., 1]] = active
-        if self.scenarios is None:  # Algorithm 9 lines 7-10: obstacles, then Algorithm 10
-            n_obs = np.minimum(cfg.number_obstacles, hw[:, 0] * hw[:, 1] - N - 1)
-            if cfg.obstacles_random:
-                n_obs = rng.integers(0, n_obs + 1)
-            keys = rng.random((k, H * W))
-            keys[(obstacle | start_mask).reshape(k, -1)] = np.inf
-            rank = np.argsort(np.argsort(keys, 1), 1).reshape(k, H, W)
-            obstacle |= rank < n_obs[:, None, None]
-            first = np.zeros_like(start_mask)
-            first[np.arange(k), starts[:, 0, 0], starts[:, 0, 1]] = True
-            obstacle |= ~_flood(~obstacle, first)  # Algorithm 10 from agent 0's start
-            lost = active & obstacle[bidx, starts[..., 0], starts[..., 1]]
-            fixed_starts = not cfg.starting_position_random and cfg.starting_position is not None
-            if lost.any() and not fixed_starts:  # agents walled off: move them to agent 0's region
-                start_mask &= ~obstacle
-                spare = self._random_cells(~obstacle & ~start_mask, N)
-                starts = np.where(lost[..., None], spare, starts)
-                start_mask[bidx, starts[..., 0], starts[..., 1]] |= active
-            n_free, n_active = (~obstacle).sum((1, 2)), active.sum(1)
-            too_small = (n_free <= n_active) | ((start_mask & ~obstacle).sum((1, 2)) < n_active)
-            too_small |= lost.any(1) if fixed_starts else False
-            if too_small.any():  # region too small for the agents plus a cell to cover: redraw
-                keep = ~too_small
-                if keep.any():
-                    self._init_worlds(w[keep], obstacle[keep], hw[keep], starts[keep], active[keep],
-                                      start_mask[keep], covered0[keep])
-                return self.reset(w[too_small])
-        self._init_worlds(w, obstacle, hw, starts, active, start_mask, covered0)
+        n_obs = np.minimum(cfg.number_obstacles, side * side - N - 1)
+        if cfg.obstacles_random:
+            n_obs = rng.integers(0, n_obs + 1)
+        keys = rng.random((k, H * W))
+        keys[(obstacle | start_mask).reshape(k, -1)] = np.inf
+        rank = np.argsort(np.argsort(keys, 1), 1).reshape(k, H, W)
+        obstacle |= rank < n_obs[:, None, None]
+        first = np.zeros_like(start_mask)
+        first[np.arange(k), starts[:, 0, 0], starts[:, 0, 1]] = True
+        obstacle |= ~_flood(~obstacle, first)
+        lost = active & obstacle[bidx, starts[..., 0], starts[..., 1]]
+        fixed_starts = not cfg.starting_position_random and cfg.starting_position is not None
+        if lost.any() and not fixed_starts:  # agents walled off: move them to agent 0's region
+            start_mask &= ~obstacle
+            spare = self._random_cells(~obstacle & ~start_mask, N)
+            starts = np.where(lost[..., None], spare, starts)
+            start_mask[bidx, starts[..., 0], starts[..., 1]] |= active
+        n_free, n_active = (~obstacle).sum((1, 2)), active.sum(1)
+        usable = (n_free > n_active) & ((start_mask & ~obstacle).sum((1, 2)) == n_active)
+        if fixed_starts:
+            usable &= ~lost.any(1)
+        drawn = (obstacle, hw, starts, active, start_mask)
+        self.pool = [np.concatenate([p, d[usable]]) for p, d in zip(self.pool, drawn)]
 
     def _random_cells(self, allowed: np.ndarray, n: int) -> np.ndarray:
         """n distinct uniformly random cells of `allowed` (k, H, W) per world -> (k, n, 2)."""
@@ -1060,7 +1084,7 @@ class GridWorldEnv(gym.Env):
     def reset(self, *, seed=None, options=None):
         super().reset(seed=seed)
         if seed is not None:
-            self.core.rng = np.random.default_rng(seed)
+            self.core.seed(seed)
         self.core.reset()
         if self.render_mode == "human":
             self.render()
@@ -1149,7 +1173,7 @@ class GridWorldVectorEnv(VectorEnv):
 
     def reset(self, *, seed=None, options=None):
         if seed is not None:
-            self.core.rng = np.random.default_rng(seed)
+            self.core.seed(seed)
         mask = None if not options or "reset_mask" not in options else options["reset_mask"]
         self.core.reset(mask)
         return self._obs(), _info(self.core)
@@ -1222,7 +1246,7 @@ def parallel_env(config: EnvConfig | dict | None = None, render_mode: str | None
 
         def reset(self, seed=None, options=None):
             if seed is not None:
-                self.core.rng = np.random.default_rng(seed)
+                self.core.seed(seed)
             self.core.reset()
             self.agents = [a for a, on in zip(self.possible_agents, self.core.active[0]) if on]
             return self._obs(), self._infos()
