@@ -986,3 +986,14 @@ def test_record_video(tmp_path):
             break
     env.close()
     assert list((tmp_path / "video").glob("*.mp4"))
+
+
+def test_face_configure_keeps_spaces():
+    env = gym.make("GridWorld-v0", size=8)
+    env.unwrapped.configure(size=12, number_obstacles=5)  # a new stage: fine
+    obs, _ = env.reset(seed=0)
+    assert env.observation_space.contains(obs)
+    for bad in (dict(view_size=31), dict(observation="tabular")):
+        with pytest.raises(ValueError, match="fixed once an env is made"):
+            env.unwrapped.configure(**bad)
+    assert env.unwrapped.core.config.size == 12
