@@ -22,7 +22,7 @@ import gridworld  # noqa: E402
 from gridworld import (EnvConfig, GridWorldCore, GridWorldVectorEnv, Scenario,  # noqa: E402
                        check_scenario, load_config, load_dataset, load_map, save_dataset, save_map)
 
-MAPS_DIR = Path("/work/shared/maps-external")
+MAPS_DIR = Path(__file__).resolve().parent.parent / "maps" / "external"
 MOVINGAI_MAPS = sorted(glob.glob(str(MAPS_DIR / "*.map")))
 DATA = Path(__file__).resolve().parent / "data"
 
@@ -95,7 +95,7 @@ SMALL_MAP = (  # one start, some covered cells, one 4-connected free component
 
 
 # ============================================================================= 1. map files
-@pytest.mark.skipif(not MOVINGAI_MAPS, reason="no MovingAI maps in /work/shared/maps-external")
+@pytest.mark.skipif(not MOVINGAI_MAPS, reason="no MovingAI maps in maps/external")
 @pytest.mark.parametrize("path", MOVINGAI_MAPS, ids=lambda p: Path(p).name)
 def test_load_movingai_map(path):
     h, w, blocked = movingai_counts(path)

@@ -18,7 +18,9 @@ the edge cells) and is compared for exact equality with `GridWorldCore.observe()
 """
 from __future__ import annotations
 
+import json
 import math
+from pathlib import Path
 from collections import deque
 
 import numpy as np
@@ -847,3 +849,22 @@ def test_edge_compression_off_keeps_plain_edges_and_out_of_bounds():
     assert (b["map"][0, 0, :, 39, 1:40] == plain[:, 1:40]).all()
     assert (a["map"][0, 0, :, 39] != b["map"][0, 0, :, 39]).any()  # averaging changed it
     assert (b["map"][0, 0, 2, 40] == 255).all() and (b["map"][0, 0, 2, :, 40] == 255).all()
+
+
+EXTERNAL = Path(__file__).resolve().parent.parent / "maps" / "external"
+
+
+@pytest.mark.parametrize("name", sorted(json.loads((EXTERNAL / "references.json").read_text())))
+def test_heuristic_reproduces_reference_greedy_step_counts(name):
+    """random_ties=False is the references' greedy walk: nearest uncovered cell, ties by the
+    first cell in row-major order; its step counts must match exactly."""
+    for ref in json.loads((EXTERNAL / "references.json").read_text())[name]:
+        core = gw.GridWorldCore(gw.EnvConfig(map_configuration=str(EXTERNAL / name),
+                                             starting_position=ref["start"],
+                                             starting_position_random=False, battery_factor=50), 1, seed=0)
+        core.reset()
+        assert core.n_free[0] == ref["n_free"]
+        while core.remaining[0] > 0:
+            core.step(core.heuristic_actions(random_ties=False))
+        assert core.steps[0] == ref["greedy_steps"]
+        assert core.metrics()["overlap"][0] == pytest.approx(ref["greedy_overlap"], abs=1e-3)
