@@ -856,54 +856,52 @@ class GridWorldCore:
         if self.config.edge_compression:
             self._average_edges(mk, known, q, yk, xk, hk, wk)
         maps[far] = mk
-        poi = known[:, POI]
-        row_cum = np.pad(poi.sum(2).cumsum(1), ((0, 0), (1, 0)))
-        col_cum = np.pad(poi.sum(1).cumsum(1), ((0, 0), (1, 0)))
+        poi_rows, poi_cols = known[:, POI].sum(2)[q], known[:, POI].sum(1)[q]  # (K, H), (K, W)
+        rows, cols = np.arange(self.H), np.arange(self.W)
         oob[far, :, 0] = np.maximum(beyond[far], 0)
-        oob[far, :, 1] = np.stack([
-            row_cum[q, np.clip(yk - R, 0, None)],
-            row_cum[q, hk] - row_cum[q, np.minimum(yk + R + 1, hk)],
-            col_cum[q, np.clip(xk - R, 0, None)],
-            col_cum[q, wk] - col_cum[q, np.minimum(xk + R + 1, wk)]], 1)
+        oob[far, :, 1] = np.stack([(poi_rows * (rows < (yk - R)[:, None])).sum(1),
+                                   (poi_rows * (rows > (yk + R)[:, None])).sum(1),
+                                   (poi_cols * (cols < (xk - R)[:, None])).sum(1),
+                                   (poi_cols * (cols > (xk + R)[:, None])).sum(1)], 1)
         return maps
 
     def _average_edges(self, mk, known, q, y, x, h, w) -> None:
-        """Rows/cols 1 and V-2 of windows mk (K, V, V) := block means of the known map
-        (worlds known[q]) over everything from offset ±R outward, via a summed-area table."""
-        V, c, R = self.V, self.c, self.V // 2 - 1
-        d = np.arange(V) - c
+        """Rows/cols 1 and V-2 of the windows mk (K, V, V) := means of the known map (worlds
+        known[q], (.., 4, H, W)) over every row/col from offset ±R outward; corners are block
+        means. The block sums are small batched matrix products."""
+        V, c, R, H, W = self.V, self.c, self.V // 2 - 1, self.H, self.W
+        f32 = np.float32
+        rows, cols, d = np.arange(H), np.arange(W), np.arange(V) - c
+        row_blocks = np.stack([rows <= (y - R)[:, None],
+                               (rows >= (y + R)[:, None]) & (rows < h[:, None])], 1)  # (K, 2, H): N, S
+        col_blocks = np.stack([cols <= (x - R)[:, None],
+                               (cols >= (x + R)[:, None]) & (cols < w[:, None])], 1)  # (K, 2, W): W, E
+        n_rows, n_cols = row_blocks.sum(2), col_blocks.sum(2)
+        kmap = known[q].astype(f32)  # (K, 4, H, W)
+        col_t = col_blocks.transpose(0, 2, 1)[:, None].astype(f32)  # (K, 1, W, 2)
+        ns = row_blocks[:, None].astype(f32) @ kmap  # (K, 4, 2, W): N/S block sums per column
+        we = kmap @ col_t  # (K, 4, H, 2): W/E block sums per row
+        corner = ns @ col_t  # (K, 4, 2, 2): [N/S, W/E] block sums
 
-        def bins(p, n):  # [lo, hi) map rows (cols) shown at each window index, and emptiness
-            lo = p[:, None] + d
-            hi = lo.copy()
-            lo[:, 1], hi[:, 1] = 0, p - R
-            lo[:, V - 2], hi[:, V - 2] = p + R, n - 1
-            lo, hi = np.maximum(lo, 0), np.minimum(hi, n[:, None] - 1)
-            empty = lo > hi
-            empty[:, [0, V - 1]] = True
-            lo = np.minimum(lo, n[:, None])
-            return lo, np.maximum(hi + 1, lo), empty
+        def edge_codes(sums, along, limit, n_block, n_across, corner_sums):
+            """Codes (K, 2, V) of the two edge lines: block sums (K, 4, 2, L) along one axis."""
+            idx = along[:, None] + d  # map row/col shown at each window index
+            inside = (idx >= 0) & (idx < limit[:, None])
+            sums = np.take_along_axis(sums, np.clip(idx, 0, sums.shape[3] - 1)[:, None, None], 3)
+            count = np.repeat(n_block[:, :, None], V, 2)
+            empty = ~inside[:, None] | (count == 0)
+            ends = [1, V - 2]
+            sums[..., ends] = corner_sums
+            count[..., ends] = n_block[:, :, None] * n_across[:, None, :]
+            empty[..., ends] = count[..., ends] == 0
+            empty[..., [0, V - 1]] = True
+            mean = np.rint(255 * sums / np.maximum(count, 1)[:, None]).astype(np.uint32)
+            code = (mean << (8 * np.arange(4, dtype=np.uint32))[:, None, None]).sum(1, dtype=np.uint32)
+            return np.where(empty, CODE[OBSTACLE], code)
 
-        below_h = (np.arange(self.H) < np.arange(self.H + 1)[:, None]).astype(np.float32)
-        below_w = (np.arange(self.W) < np.arange(self.W + 1)[:, None]).astype(np.float32)
-        integral = (below_h @ known.astype(np.float32) @ below_w.T).astype(np.int32)
-        (r0, r1, re), (c0, c1, ce) = bins(y, h), bins(x, w)
-        edge = np.array([1, V - 2])
-
-        def box(ra, rb, rempty, ca, cb, cempty):  # block means as uint32 cell codes
-            qq = q.reshape((-1,) + (1,) * ra.ndim)
-            ch = np.arange(4).reshape((1, 4) + (1,) * (ra.ndim - 1))
-            ra, rb, ca, cb = (v[:, None] for v in (ra, rb, ca, cb))
-            total = integral[qq, ch, rb, cb] - integral[qq, ch, ra, cb] - integral[qq, ch, rb, ca] \
-                + integral[qq, ch, ra, ca]
-            mean = np.rint(255 * total / np.maximum((rb - ra) * (cb - ca), 1)).astype(np.uint32)
-            code = (mean << (8 * ch).astype(np.uint32)).sum(1, dtype=np.uint32)
-            return np.where(rempty | cempty, CODE[OBSTACLE], code)
-
-        mk[:, edge, :] = box(r0[:, edge, None], r1[:, edge, None], re[:, edge, None],
-                             c0[:, None, :], c1[:, None, :], ce[:, None, :])
-        mk[:, :, edge] = box(r0[:, :, None], r1[:, :, None], re[:, :, None],
-                             c0[:, None, edge], c1[:, None, edge], ce[:, None, edge])
+        mk[:, [1, V - 2], :] = edge_codes(ns, x, w, n_rows, n_cols, corner)
+        mk[:, :, [1, V - 2]] = edge_codes(we.transpose(0, 1, 3, 2), y, h, n_cols, n_rows,
+                                          corner.transpose(0, 1, 3, 2)).transpose(0, 2, 1)
 
     def observe_tabular(self) -> np.ndarray:
         """§5.3.1 readings r' for every agent, (B, N, 8) int8 in the order N, S, E, W, NE, NW,
