@@ -302,11 +302,24 @@ def check_scenario(s: Scenario, where: str = "map") -> None:
                          "is impossible")
 
 
-def save_dataset(path: str, scenarios: list[Scenario]) -> None:
+def generate_scenarios(n: int, seed: int = 0, **config) -> list[Scenario]:
+    """n random scenarios drawn by Algorithms 9-10 with the given settings (initial state:
+    obstacles, agent starts, pre-covered cells including the starts)."""
+    core = GridWorldCore(EnvConfig.from_dict(config), n, seed=seed)
+    core.reset()
+    return core.snapshot()
+
+
+def save_dataset(path: str, scenarios: list[Scenario], **columns: np.ndarray) -> None:
     """Save scenarios as compressed .npz: obstacles (M,H,W) padded with obstacles, sizes (M,2),
-    starts (M,Nmax,2) padded with -1, covered (M,H,W)."""
+    starts (M,Nmax,2) padded with -1, covered (M,H,W), plus any per-scenario `columns` (M, ...)
+    such as the settings a scenario was drawn with (read them with np.load)."""
     if not scenarios:
         raise ValueError(f"{path}: no scenarios to save")
+    reserved = {"obstacles", "sizes", "starts", "covered"}
+    for name, col in columns.items():
+        if name in reserved or len(col) != len(scenarios):
+            raise ValueError(f"{path}: column {name!r} must be new and have one row per scenario")
     H = max(s.obstacles.shape[0] for s in scenarios)
     W = max(s.obstacles.shape[1] for s in scenarios)
     n = max((0 if s.starts is None else len(s.starts)) for s in scenarios)
@@ -321,7 +334,8 @@ def save_dataset(path: str, scenarios: list[Scenario]) -> None:
             covered[i, :h, :w] = s.covered
         if s.starts is not None:
             starts[i, :len(s.starts)] = s.starts
-    np.savez_compressed(path, obstacles=obstacles, sizes=sizes, starts=starts, covered=covered)
+    np.savez_compressed(path, obstacles=obstacles, sizes=sizes, starts=starts, covered=covered,
+                        **columns)
 
 
 def load_dataset(path: str) -> list[Scenario]:
@@ -336,13 +350,32 @@ def load_dataset(path: str) -> list[Scenario]:
             or starts.shape[-1:] != (2,) or covered.shape != obstacles.shape):
         raise ValueError(f"{path}: not a gridworld dataset (arrays of inconsistent shapes)")
     out = []
-    for i, (h, w) in enumerate(sizes):
+    for i, (h, w) in enumerate(sizes):  # one small copy per scenario
         st = starts[i][starts[i, :, 0] >= 0]
-        s = Scenario(obstacles[i, :h, :w].copy(), st if len(st) else None,
-                     covered[i, :h, :w].copy() if covered[i].any() else None)
-        check_scenario(s, f"{path}[{i}]")
-        out.append(s)
+        out.append(Scenario(obstacles[i, :h, :w].copy(), st if len(st) else None,
+                            covered[i, :h, :w].copy() if covered[i].any() else None))
+    bad = _invalid_scenarios(obstacles, sizes, starts)
+    if bad.any():  # name the first bad scenario and its problem
+        i = int(np.argmax(bad))
+        check_scenario(out[i], f"{path}[{i}]")
     return out
+
+
+def _invalid_scenarios(obstacles: np.ndarray, sizes: np.ndarray, starts: np.ndarray) -> np.ndarray:
+    """Batch form of check_scenario over padded arrays: True where a scenario is unusable."""
+    M, H, W = obstacles.shape
+    inmap = (np.arange(H)[:, None] < sizes[:, None, None, 0]) & (np.arange(W) < sizes[:, None, None, 1])
+    free = ~obstacles & inmap
+    seed = np.zeros_like(free)
+    seed.reshape(M, -1)[np.arange(M), free.reshape(M, -1).argmax(1)] = True
+    bad = ~free.any((1, 2)) | (_flood(free, seed) != free).any((1, 2))
+    used = starts[..., 0] >= 0
+    y, x = np.clip(starts[..., 0], 0, H - 1), np.clip(starts[..., 1], 0, W - 1)
+    outside = (starts[..., 0] >= sizes[:, None, 0]) | (starts[..., 1] >= sizes[:, None, 1]) | (starts[..., 1] < 0)
+    on_obstacle = obstacles[np.arange(M)[:, None], y, x]
+    same = (starts[:, :, None] == starts[:, None, :]).all(-1) & used[:, :, None] & used[:, None, :]
+    duplicate = same.sum((1, 2)) > used.sum(1)
+    return bad | (used & (outside | on_obstacle)).any(1) | duplicate
 
 
 # ----------------------------------------------------------------------------- grid helpers
@@ -797,6 +830,19 @@ class GridWorldCore:
         if rp.scale_by_area:
             r = (r / (self.hw[:, 0:1] * self.hw[:, 1:2])).astype(np.float32)
         return r if self.all_active else np.where(self.active, r, np.float32(0))
+
+    def snapshot(self, worlds=None) -> list[Scenario]:
+        """The current map, agent cells and coverage of worlds as Scenarios (e.g. to save a
+        dataset, or keep an unsolved episode to replay it, §6.4.2.3)."""
+        c = self.c
+        cells = self.agent_cells()
+        out = []
+        for b in range(self.B) if worlds is None else worlds:  # one small copy per world
+            h, w = self.hw[b]
+            inner = (b, slice(c, c + h), slice(c, c + w))
+            out.append(Scenario(self.obstacle[inner].copy(), cells[b][self.active[b]].copy(),
+                                self.covered[inner].copy()))
+        return out
 
     def recharge(self, worlds, factor: float = 2.0) -> None:
         """Give worlds a new battery of factor * h * w steps (partial reset, §6.4.2.2)."""

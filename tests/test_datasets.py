@@ -1,0 +1,62 @@
+"""The committed datasets in maps/: regenerable, well formed, drawn as documented."""
+import importlib.util
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import gridworld as gw
+
+MAPS = Path(__file__).resolve().parent.parent / "maps"
+spec = importlib.util.spec_from_file_location("make_datasets", MAPS / "make_datasets.py")
+make_datasets = importlib.util.module_from_spec(spec)
+sys.modules["make_datasets"] = make_datasets  # dataclasses look their module up here
+spec.loader.exec_module(make_datasets)
+
+
+@pytest.mark.parametrize("size", [5, 30])
+def test_cpp_eval_subsets_regenerate_exactly(size):
+    data = np.load(MAPS / "cpp_eval.npz")
+    rows = np.flatnonzero(data["size"] == size)
+    fresh = make_datasets.subset(make_datasets.Args(), 1, size, 0.10, len(rows))
+    for i, s in zip(rows, fresh):
+        assert (data["obstacles"][i, :size, :size] == s.obstacles).all()
+        assert (data["starts"][i, :1] == s.starts).all()
+
+
+@pytest.mark.parametrize("name,agents", [("cpp_eval", 1), ("marl_eval", 15), ("p2p_eval", 1)])
+def test_datasets_follow_their_protocol(name, agents):
+    data = np.load(MAPS / f"{name}.npz")
+    scenarios = gw.load_dataset(str(MAPS / f"{name}.npz"))  # validates every scenario
+    sizes = data["size"]
+    assert sorted(set(sizes.tolist())) == list(range(5, 31))
+    limit = 0.15 if name == "marl_eval" else 0.10
+    for s, size in zip(scenarios, sizes):
+        assert s.obstacles.shape == (size, size) and len(s.starts) == agents
+        poi = ~s.obstacles & ~s.covered
+        if name == "p2p_eval":
+            assert poi.sum() == 1
+        else:
+            assert poi.sum() == (~s.obstacles).sum() - agents
+    # obstacles uniform in [0, limit] of the cells (plus rare pockets filled by Algorithm 10)
+    fraction = np.mean([s.obstacles.mean() for s in scenarios])
+    assert 0.4 * limit < fraction < 0.6 * limit
+    if name == "cpp_eval":
+        assert np.bincount(sizes)[5:].tolist() == [100] * 26
+
+
+def test_marl_eval_agent_prefixes_are_distinct_free_cells():
+    for s in gw.load_dataset(str(MAPS / "marl_eval.npz"))[::50]:
+        st = [tuple(p) for p in s.starts.tolist()]
+        assert len(set(st)) == 15 and not s.obstacles[s.starts[:, 0], s.starts[:, 1]].any()
+
+
+def test_ch5_sets():
+    data = np.load(MAPS / "ch5_6x6.npz")
+    corners = {(0, 0), (0, 5), (5, 0), (5, 5)}
+    for s, k in zip(gw.load_dataset(str(MAPS / "ch5_6x6.npz")), data["requested_obstacles"]):
+        assert s.obstacles.shape == (6, 6) and tuple(s.starts[0]) in corners
+        assert s.obstacles.sum() >= k
+    data = np.load(MAPS / "ch5_eval.npz")
+    assert len(data["size"]) == 42 * 100
