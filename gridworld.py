@@ -320,6 +320,13 @@ def save_dataset(path: str, scenarios: list[Scenario], **columns: np.ndarray) ->
     for name, col in columns.items():
         if name in reserved or len(col) != len(scenarios):
             raise ValueError(f"{path}: column {name!r} must be new and have one row per scenario")
+    obstacles, sizes, starts, covered = _stack(scenarios)
+    np.savez_compressed(path, obstacles=obstacles, sizes=sizes, starts=starts, covered=covered,
+                        **columns)
+
+
+def _stack(scenarios: list[Scenario]) -> tuple[np.ndarray, ...]:
+    """Scenarios as padded arrays: obstacles, sizes, starts (-1 padded), covered."""
     H = max(s.obstacles.shape[0] for s in scenarios)
     W = max(s.obstacles.shape[1] for s in scenarios)
     n = max((0 if s.starts is None else len(s.starts)) for s in scenarios)
@@ -327,15 +334,22 @@ def save_dataset(path: str, scenarios: list[Scenario], **columns: np.ndarray) ->
     covered = np.zeros((len(scenarios), H, W), bool)
     starts = np.full((len(scenarios), n, 2), -1, np.int16)
     sizes = np.array([s.obstacles.shape for s in scenarios], np.int16)
-    for i, s in enumerate(scenarios):
+    for i, s in enumerate(scenarios):  # one small copy per scenario
         h, w = s.obstacles.shape
         obstacles[i, :h, :w] = s.obstacles
         if s.covered is not None:
             covered[i, :h, :w] = s.covered
         if s.starts is not None:
             starts[i, :len(s.starts)] = s.starts
-    np.savez_compressed(path, obstacles=obstacles, sizes=sizes, starts=starts, covered=covered,
-                        **columns)
+    return obstacles, sizes, starts, covered
+
+
+def check_scenarios(scenarios: list[Scenario], where: str = "scenarios") -> None:
+    """check_scenario for many scenarios at once; the error names the first bad one."""
+    bad = _invalid_scenarios(*_stack(scenarios)[:3])
+    if bad.any():
+        i = int(np.argmax(bad))
+        check_scenario(scenarios[i], f"{where}[{i}]")
 
 
 def load_dataset(path: str) -> list[Scenario]:
@@ -354,10 +368,7 @@ def load_dataset(path: str) -> list[Scenario]:
         st = starts[i][starts[i, :, 0] >= 0]
         out.append(Scenario(obstacles[i, :h, :w].copy(), st if len(st) else None,
                             covered[i, :h, :w].copy() if covered[i].any() else None))
-    bad = _invalid_scenarios(obstacles, sizes, starts)
-    if bad.any():  # name the first bad scenario and its problem
-        i = int(np.argmax(bad))
-        check_scenario(out[i], f"{path}[{i}]")
+    check_scenarios(out, path)
     return out
 
 
@@ -444,15 +455,19 @@ class GridWorldCore:
         self.configure(config if config is not None else EnvConfig())
 
     # --- configuration -----------------------------------------------------------------
-    def configure(self, config: EnvConfig | dict | None = None, **changes) -> None:
-        """Change the settings; each world picks them up at its next reset (§4.2.1.1)."""
+    def configure(self, config: EnvConfig | dict | None = None, scenarios: list[Scenario] | None = None,
+                  **changes) -> None:
+        """Change the settings; each world picks them up at its next reset (§4.2.1.1).
+        `scenarios` (in memory, checked) replace map_configuration/dataset_path."""
         if isinstance(config, dict):
             config = EnvConfig.from_dict(config)
         config = config or self.config
         config = config.replace(**changes) if changes else config
         config.validate()
-        scenarios: list[Scenario] | None = None
-        if config.dataset_path:
+        if scenarios is not None:
+            scenarios = list(scenarios)
+            check_scenarios(scenarios)
+        elif config.dataset_path:
             scenarios = load_dataset(config.dataset_path)
         elif config.map_configuration:
             scenarios = [load_map(config.map_configuration)]
@@ -461,7 +476,7 @@ class GridWorldCore:
         if scenarios is not None:
             H = max(s.obstacles.shape[0] for s in scenarios)
             W = max(s.obstacles.shape[1] for s in scenarios)
-            source = config.dataset_path or config.map_configuration
+            source = config.dataset_path or config.map_configuration or "scenarios"
             if config.load_state and any(s.starts is None for s in scenarios):
                 raise ValueError(f"{source}: load_state needs scenarios with agent starts")
             if config.load_state:
