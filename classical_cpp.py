@@ -1,0 +1,495 @@
+"""Classical coverage planners, multi-agent baselines and a near-optimal reference.
+
+Every planner takes a map with its start(s) (a gridworld.Scenario) and returns one path per
+agent: an array of [row, col] cells, one per time step, consecutive cells 4-adjacent (or equal:
+the agent waits). `replay` runs the paths through gridworld's own environment, so every metric
+(steps, overlap, time-save factor) is counted by the same code that scores the learned agents,
+and it rejects illegal or incomplete paths.
+
+    python classical_cpp.py --planner boustrophedon --maps maps/external/room-32-32-4.map
+    python classical_cpp.py --planner greedy --dataset maps/cpp_eval.npz --limit 200
+    python classical_cpp.py --planner partition --dataset maps/marl_eval.npz --agents 5
+
+Single agent: greedy (the navigation heuristic run to completion), boustrophedon (BA*-style
+back-and-forth with shortest-path repositioning), spiral-stc (Spiral-STC on 2x2 blocks, partly
+blocked blocks kept), wavefront (Zelinsky's distance transform), lkh (the TSP over the
+shortest-path metric closure solved by LKH-3 through elkai: the near-optimal reference).
+Several agents: greedy (with claims), partition (balanced connected regions, then greedy in
+each), and `lower_bound` = ceil((n_free - N) / N) steps.
+"""
+from __future__ import annotations
+
+import heapq
+import json
+import math
+import time
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+import tyro
+
+import gridworld
+from gridworld import EnvConfig, GridWorldCore, Scenario
+
+MOVES = ((-1, 0), (1, 0), (0, -1), (0, 1))  # N, S, W, E: the gridworld action order
+LKH_TIME_LIMIT = 10.0  # seconds of LKH search per map (plus reading the problem)
+
+
+# ----------------------------------------------------------------------------- the grid graph
+class Grid:
+    """The free cells of a map as a graph over flat indices y * w + x."""
+
+    def __init__(self, obstacles: np.ndarray):
+        self.h, self.w = obstacles.shape
+        self.free = ~obstacles.ravel()
+        self.neighbours = [[] for _ in range(self.h * self.w)]
+        for y in range(self.h):
+            for x in range(self.w):
+                if self.free[y * self.w + x]:
+                    self.neighbours[y * self.w + x] = [
+                        (y + dy) * self.w + x + dx for dy, dx in MOVES
+                        if 0 <= y + dy < self.h and 0 <= x + dx < self.w
+                        and self.free[(y + dy) * self.w + x + dx]]
+
+    def bfs(self, source: int) -> np.ndarray:
+        """Shortest-path distances from `source` to every cell (-1 where unreachable)."""
+        dist = np.full(self.h * self.w, -1, np.int64)
+        dist[source] = 0
+        queue = deque([source])
+        while queue:
+            u = queue.popleft()
+            for v in self.neighbours[u]:
+                if dist[v] < 0:
+                    dist[v] = dist[u] + 1
+                    queue.append(v)
+        return dist
+
+    def walk(self, a: int, b: int, dist_to_b: np.ndarray) -> list[int]:
+        """The cells of a shortest path a -> b (a excluded, b included), each move the first
+        in N, S, W, E order that gets closer, given the distances to b."""
+        path = []
+        while a != b:
+            a = next(v for v in self.neighbours[a] if dist_to_b[v] == dist_to_b[a] - 1)
+            path.append(a)
+        return path
+
+    def nearest(self, source: int, wanted: np.ndarray, rank: np.ndarray | None = None) -> list[int]:
+        """Shortest path from `source` to the nearest `wanted` cell (ties: the lowest `rank`,
+        else the first in row-major order), source excluded; [] if none is reachable."""
+        dist = np.full(self.h * self.w, -1, np.int64)
+        dist[source] = 0
+        layer, parent = [source], {source: source}
+        while layer:
+            hits = [u for u in layer if wanted[u] and u != source]
+            if hits:
+                goal = min(hits, key=lambda u: (rank[u], u) if rank is not None else u)
+                path = [goal]
+                while parent[path[-1]] != source:
+                    path.append(parent[path[-1]])
+                return path[::-1]
+            nxt = []
+            for u in layer:
+                for v in self.neighbours[u]:
+                    if dist[v] < 0:
+                        dist[v] = dist[u] + 1
+                        parent[v] = u
+                        nxt.append(v)
+            layer = nxt
+        return []
+
+
+def _cells(grid: Grid, path: list[int]) -> np.ndarray:
+    return np.stack(np.divmod(np.asarray(path, np.int64), grid.w), 1)
+
+
+def _start(scenario: Scenario, grid: Grid) -> int:
+    if scenario.starts is None or len(scenario.starts) != 1:
+        raise ValueError("a single-agent planner needs exactly one start")
+    y, x = scenario.starts[0]
+    return int(y) * grid.w + int(x)
+
+
+def _uncovered(scenario: Scenario, grid: Grid) -> np.ndarray:
+    covered = np.zeros_like(grid.free) if scenario.covered is None else scenario.covered.ravel().copy()
+    return grid.free & ~covered
+
+
+def _finish_greedy(grid: Grid, path: list[int], todo: np.ndarray) -> None:
+    """Extend `path` to the nearest uncovered cell until none is left (marks `todo`)."""
+    while todo.any():
+        leg = grid.nearest(path[-1], todo)
+        if not leg:
+            raise ValueError("some free cells are unreachable from the start")
+        path += leg
+        todo[leg] = False
+
+
+# ----------------------------------------------------------------------------- single agent
+def boustrophedon(scenario: Scenario) -> list[np.ndarray]:
+    """BA*-style coverage: move N, else S, else E, else W into an uncovered cell (column-wise
+    back-and-forth sweeps); at a dead end, walk a shortest path to the nearest uncovered cell
+    (ties: first in row-major order) and sweep on."""
+    grid = Grid(scenario.obstacles)
+    pos = _start(scenario, grid)
+    todo = _uncovered(scenario, grid)
+    todo[pos] = False
+    path = [pos]
+    order = (0, 1, 3, 2)  # N, S, E, W
+    while todo.any():
+        y, x = divmod(pos, grid.w)
+        step = None
+        for k in order:
+            ny, nx = y + MOVES[k][0], x + MOVES[k][1]
+            if 0 <= ny < grid.h and 0 <= nx < grid.w and todo[ny * grid.w + nx]:
+                step = ny * grid.w + nx
+                break
+        leg = [step] if step is not None else grid.nearest(pos, todo)
+        if not leg:
+            raise ValueError("some free cells are unreachable from the start")
+        path += leg
+        todo[leg] = False
+        pos = path[-1]
+    return [_cells(grid, path)]
+
+
+def wavefront(scenario: Scenario) -> list[np.ndarray]:
+    """Zelinsky's distance-transform coverage (§3.4.1): the distance transform grows from the
+    goal (the free cell farthest from the start); the robot steps to the uncovered neighbour
+    with the highest value, else walks a shortest path (no jumps) to the nearest uncovered
+    cell, ties going to the highest value."""
+    grid = Grid(scenario.obstacles)
+    pos = _start(scenario, grid)
+    goal = int(np.argmax(grid.bfs(pos)))
+    transform = grid.bfs(goal)
+    todo = _uncovered(scenario, grid)
+    todo[pos] = False
+    path = [pos]
+    while todo.any():
+        options = [v for v in grid.neighbours[pos] if todo[v]]
+        leg = [max(options, key=lambda v: transform[v])] if options else \
+            grid.nearest(pos, todo, rank=-transform)
+        if not leg:
+            raise ValueError("some free cells are unreachable from the start")
+        path += leg
+        todo[leg] = False
+        pos = path[-1]
+    return [_cells(grid, path)]
+
+
+def spiral_stc(scenario: Scenario) -> list[np.ndarray]:
+    """Spiral-STC (Gabriely & Rimon) on 2x2 blocks. A block is usable if ANY of its cells is
+    free, so partly blocked blocks are covered too: the spanning tree of usable blocks is grown
+    depth-first with a spiral (counter-clockwise) preference, its circumnavigation visits the
+    cells of every tree block in order, blocked cells are skipped and consecutive free cells
+    are joined by shortest paths; cells of blocks the tree misses are finished greedily."""
+    grid = Grid(scenario.obstacles)
+    h, w = grid.h, grid.w
+    H, W = -(-h // 2), -(-w // 2)
+    usable = np.zeros((H, W), bool)
+    for y, x in zip(*np.nonzero(~scenario.obstacles)):
+        usable[y // 2, x // 2] = True
+    pos = _start(scenario, grid)
+    root = (pos // w // 2, pos % w // 2)
+    # the spanning tree: depth-first, turning counter-clockwise from where we came from
+    ccw = [(-1, 0), (0, -1), (1, 0), (0, 1)]  # N, W, S, E
+    tree = {root: []}
+    stack = [(root, 0)]
+    while stack:
+        block, heading = stack[-1]
+        for turn in range(4):
+            k = (heading + 1 + turn) % 4  # start left of the heading: a spiral
+            nb = (block[0] + ccw[k][0], block[1] + ccw[k][1])
+            if 0 <= nb[0] < H and 0 <= nb[1] < W and usable[nb] and nb not in tree:
+                tree[nb] = []
+                tree[block].append(nb)
+                stack.append((nb, (k + 2) % 4))
+                break
+        else:
+            stack.pop()
+    # the circumnavigation: within a block the cells form the cycle TL-TR-BR-BL; a tree edge
+    # opens the two facing sides and links the blocks' cells in their place
+    link: dict[tuple, set] = {}
+
+    def cell(by, bx, dy, dx):
+        return (2 * by + dy, 2 * bx + dx)
+
+    for (by, bx) in tree:
+        ring = [cell(by, bx, 0, 0), cell(by, bx, 0, 1), cell(by, bx, 1, 1), cell(by, bx, 1, 0)]
+        for a, b in zip(ring, ring[1:] + ring[:1]):
+            link.setdefault(a, set()).add(b)
+            link.setdefault(b, set()).add(a)
+    for (by, bx), children in tree.items():
+        for (cy, cx) in children:
+            if cy == by:  # east-west edge
+                left, right = ((by, bx), (cy, cx)) if cx > bx else ((cy, cx), (by, bx))
+                pairs = [(cell(*left, 0, 1), cell(*left, 1, 1)), (cell(*right, 0, 0), cell(*right, 1, 0))]
+                joins = [(cell(*left, 0, 1), cell(*right, 0, 0)), (cell(*left, 1, 1), cell(*right, 1, 0))]
+            else:  # north-south edge
+                top, bottom = ((by, bx), (cy, cx)) if cy > by else ((cy, cx), (by, bx))
+                pairs = [(cell(*top, 1, 0), cell(*top, 1, 1)), (cell(*bottom, 0, 0), cell(*bottom, 0, 1))]
+                joins = [(cell(*top, 1, 0), cell(*bottom, 0, 0)), (cell(*top, 1, 1), cell(*bottom, 0, 1))]
+            for a, b in pairs:
+                link[a].discard(b)
+                link[b].discard(a)
+            for a, b in joins:
+                link[a].add(b)
+                link[b].add(a)
+    start = (pos // w, pos % w)
+    order, prev, here = [start], None, start
+    while True:  # follow the single cycle once round
+        nxt = min(link[here] - {prev}) if prev is not None else min(link[here])
+        if nxt == start:
+            break
+        order.append(nxt)
+        prev, here = here, nxt
+    todo = _uncovered(scenario, grid)
+    todo[pos] = False
+    path = [pos]
+    for y, x in order[1:]:
+        if y < h and x < w and todo[y * w + x]:
+            target = y * w + x
+            leg = [target] if target in grid.neighbours[path[-1]] else \
+                grid.walk(path[-1], target, grid.bfs(target))
+            path += leg
+            todo[leg] = False
+    _finish_greedy(grid, path, todo)
+    return [_cells(grid, path)]
+
+
+def lkh(scenario: Scenario, time_limit: float = LKH_TIME_LIMIT, runs: int = 1) -> list[np.ndarray]:
+    """Near-optimal reference: an open tour from the start through every uncovered cell, over
+    the shortest-path metric closure, solved by LKH-3 (elkai), then expanded into moves. A
+    dummy city joined to the start at cost 0 and to every other city at a large cost turns
+    LKH's closed tour into a path with a fixed start and a free end."""
+    import elkai._elkai as lkh3  # the solver's own entry point, so a time limit can be set
+
+    grid = Grid(scenario.obstacles)
+    pos = _start(scenario, grid)
+    cities = [pos] + [int(c) for c in np.flatnonzero(_uncovered(scenario, grid)) if c != pos]
+    if len(cities) <= 2:
+        return [_cells(grid, [pos] + (grid.walk(pos, cities[1], grid.bfs(cities[1])) if len(cities) > 1 else []))]
+    dist = np.stack([grid.bfs(c)[cities] for c in cities])
+    if (dist < 0).any():
+        raise ValueError("some free cells are unreachable from the start")
+    n = len(cities)
+    big = int(dist.max()) * n + 1
+    matrix = np.zeros((n + 1, n + 1), np.int64)
+    matrix[:n, :n] = dist
+    matrix[n, 1:n] = matrix[1:n, n] = big
+    problem = (f"TYPE : TSP\nDIMENSION : {n + 1}\nEDGE_WEIGHT_TYPE : EXPLICIT\n"
+               "EDGE_WEIGHT_FORMAT : FULL_MATRIX\nEDGE_WEIGHT_SECTION\n"
+               + "\n".join(" ".join(map(str, row)) for row in matrix.tolist()) + "\n")
+    params = f"RUNS = {runs}\nPROBLEM_FILE = :stdin:\nTIME_LIMIT = {time_limit}\nSEED = 1\n"
+    tour = [c - 1 for c in lkh3.solve_problem(params, problem)]
+    k = tour.index(n)
+    tour = tour[k + 1:] + tour[:k]  # the dummy's neighbours are the start and the free end
+    if tour[0] != 0:
+        tour = tour[::-1]
+    path = [pos]
+    for c in tour[1:]:
+        path += grid.walk(path[-1], cities[c], grid.bfs(cities[c]))
+    return [_cells(grid, path)]
+
+
+# ----------------------------------------------------------------------------- greedy (batched)
+def greedy_many(scenarios: list[Scenario]) -> list[list[np.ndarray]]:
+    """The navigation heuristic run to completion in gridworld itself, for many maps at once:
+    nearest known point of interest, first in row-major order on ties; several agents claim
+    distinct targets (the nearest agent-target pair first)."""
+    if not scenarios:
+        return []
+    by_agents: dict[int, list[int]] = {}
+    for i, s in enumerate(scenarios):
+        by_agents.setdefault(len(s.starts), []).append(i)
+    out: list[list[np.ndarray]] = [[] for _ in scenarios]
+    for n, rows in by_agents.items():  # one batched core per number of agents
+        group = [scenarios[i] for i in rows]
+        core = GridWorldCore(EnvConfig(load_state=True, load_random=False, number_agents=n,
+                                       battery_factor=1e6), len(group))
+        core.configure(scenarios=group)
+        core.reset()
+        trace = [core.agent_cells()]
+        done = core.remaining == 0
+        end = np.where(done, 0, -1)
+        while not done.all():
+            actions = np.where(done[:, None], gridworld.WAIT, core.heuristic_actions(random_ties=False))
+            core.step(actions)
+            trace.append(core.agent_cells())
+            finished = ~done & (core.remaining == 0)
+            end[finished] = len(trace) - 1
+            done |= finished
+        trace = np.stack(trace, 1)  # (B, T, N, 2)
+        for j, i in enumerate(rows):
+            out[i] = [trace[j, :end[j] + 1, a].copy() for a in range(n)]
+    return out
+
+
+def greedy(scenario: Scenario) -> list[np.ndarray]:
+    return greedy_many([scenario])[0]
+
+
+# ----------------------------------------------------------------------------- several agents
+def partition(scenario: Scenario) -> list[np.ndarray]:
+    """Balanced connected regions, then greedy coverage inside each. Regions grow from the
+    starts breadth-first, always extending the currently smallest region (so each region is
+    connected and sizes stay as even as the map allows); each agent then covers its region
+    alone, treating other regions as walls, so the agents never meet."""
+    grid = Grid(scenario.obstacles)
+    starts = [int(y) * grid.w + int(x) for y, x in scenario.starts]
+    owner = np.full(grid.h * grid.w, -1)
+    frontier = [deque([s]) for s in starts]
+    size = [0] * len(starts)
+    for i, s in enumerate(starts):
+        owner[s], size[i] = i, 1
+    heap = [(1, i) for i in range(len(starts))]
+    while heap:
+        _, i = heapq.heappop(heap)
+        while frontier[i]:  # claim one more cell next to region i
+            u = frontier[i][0]
+            free_nb = [v for v in grid.neighbours[u] if owner[v] < 0]
+            if not free_nb:
+                frontier[i].popleft()
+                continue
+            owner[free_nb[0]] = i
+            frontier[i].append(free_nb[0])
+            size[i] += 1
+            heapq.heappush(heap, (size[i], i))
+            break
+    covered = np.zeros((grid.h, grid.w), bool) if scenario.covered is None else scenario.covered
+    regions, paths = [], [np.asarray(scenario.starts[i:i + 1]) for i in range(len(starts))]
+    for i in range(len(starts)):
+        own = (owner == i).reshape(grid.h, grid.w)
+        region_covered = covered & own
+        region_covered[tuple(scenario.starts[i])] = True
+        if (own & ~region_covered).any():  # an agent with nothing to cover stays put
+            regions.append((i, Scenario(~own, scenario.starts[i:i + 1], region_covered)))
+    for (i, _), p in zip(regions, greedy_many([r for _, r in regions])):
+        paths[i] = p[0]
+    return paths
+
+
+def lower_bound(scenario: Scenario) -> int:
+    """No schedule of N agents finishes in fewer steps: each step covers at most N cells."""
+    n = len(scenario.starts)
+    return math.ceil(((~scenario.obstacles).sum() - n) / n)
+
+
+PLANNERS = {"greedy": greedy, "boustrophedon": boustrophedon, "spiral-stc": spiral_stc,
+            "wavefront": wavefront, "lkh": lkh, "partition": partition}
+SINGLE_AGENT = {"boustrophedon", "spiral-stc", "wavefront", "lkh"}
+
+
+# ----------------------------------------------------------------------------- replay
+def replay(scenario: Scenario, paths: list[np.ndarray]) -> dict:
+    """Run per-agent paths through gridworld and return its episode metrics. Raises ValueError
+    if a path leaves the map, jumps, enters an obstacle, is blocked by the safety controller or
+    leaves a free cell uncovered."""
+    n = len(scenario.starts)
+    if len(paths) != n:
+        raise ValueError(f"{len(paths)} paths for {n} agents")
+    for i, p in enumerate(paths):
+        p = np.asarray(p)
+        if p.ndim != 2 or p.shape[1] != 2 or len(p) == 0 or (p[0] != scenario.starts[i]).any():
+            raise ValueError(f"path {i} must be [row, col] cells starting at the agent's start")
+        if (np.abs(np.diff(p, axis=0)).sum(1) > 1).any():
+            raise ValueError(f"path {i} jumps: consecutive cells must be 4-adjacent")
+    core = GridWorldCore(EnvConfig(load_state=True, number_agents=n, battery_factor=1e6), 1)
+    core.configure(scenarios=[scenario])
+    core.reset()
+    T = max(len(p) for p in paths)
+    for t in range(1, T):
+        actions = []
+        for p in paths:
+            if t >= len(p) or (p[t] == p[t - 1]).all():
+                actions.append(gridworld.WAIT)
+            else:
+                d = tuple(int(v) for v in p[t] - p[t - 1])
+                actions.append(MOVES.index(d))
+        events = core.step(np.array([actions]))
+        if events["blocked"].any():
+            raise ValueError(f"step {t}: a move is blocked (obstacle, border or another agent)")
+    metrics = {k: v[0].item() for k, v in core.metrics().items()}
+    if not metrics["completed"]:
+        raise ValueError(f"the paths leave {core.remaining[0]} free cells uncovered")
+    metrics["lower_bound"] = lower_bound(scenario)
+    return metrics
+
+
+def plan(name: str, scenarios: list[Scenario]) -> list[list[np.ndarray]]:
+    """Paths of planner `name` for every scenario (greedy is batched over all of them)."""
+    if name not in PLANNERS:
+        raise ValueError(f"unknown planner {name!r}; choose from {sorted(PLANNERS)}")
+    if name in SINGLE_AGENT and any(len(s.starts) != 1 for s in scenarios):
+        raise ValueError(f"{name} is a single-agent planner; use greedy or partition for several")
+    if name == "greedy":
+        return greedy_many(scenarios)
+    return [PLANNERS[name](s) for s in scenarios]
+
+
+# ----------------------------------------------------------------------------- command line
+@dataclass
+class Args:
+    planner: str = "greedy"
+    """one of greedy, boustrophedon, spiral-stc, wavefront, lkh, partition"""
+    maps: tuple[str, ...] = ()
+    """MovingAI .map or ASCII map files (starts from the file, --starts or --seed)"""
+    dataset: str | None = None
+    """a gridworld .npz dataset (e.g. maps/cpp_eval.npz)"""
+    agents: int = 1
+    """agents per scenario: the first N stored starts, or N random starts"""
+    limit: int = 0
+    """use only the first LIMIT scenarios (0: all)"""
+    seed: int = 0
+    """seed for starts drawn at random"""
+    out: str | None = None
+    """write one JSON line of metrics per scenario here"""
+
+
+def load_scenarios(args: Args) -> list[Scenario]:
+    scenarios = gridworld.load_dataset(args.dataset) if args.dataset else []
+    for path in args.maps:
+        scenarios.append(gridworld.load_map(path))
+    if not scenarios:
+        raise ValueError("give --maps FILE... or --dataset FILE")
+    if args.limit:
+        scenarios = scenarios[:args.limit]
+    rng = np.random.default_rng(args.seed)
+    for s in scenarios:
+        if s.starts is not None and len(s.starts) >= args.agents:
+            s.starts = s.starts[:args.agents]
+            continue
+        free = np.argwhere(~s.obstacles)
+        if len(free) <= args.agents:
+            raise ValueError(f"a map has {len(free)} free cells for {args.agents} agents")
+        s.starts = free[rng.choice(len(free), args.agents, replace=False)]
+        s.covered = None
+    for s in scenarios:  # the starts are covered from the first step (Algorithm 9 line 17)
+        s.covered = (np.zeros_like(s.obstacles) if s.covered is None else s.covered.copy())
+        s.covered[s.starts[:, 0], s.starts[:, 1]] = True
+    return scenarios
+
+
+def main(args: Args) -> None:
+    scenarios = load_scenarios(args)
+    t0 = time.perf_counter()
+    paths = plan(args.planner, scenarios)
+    seconds = time.perf_counter() - t0
+    rows = [replay(s, p) for s, p in zip(scenarios, paths)]
+    if args.out:
+        with open(args.out, "w") as f:
+            for s, r in zip(scenarios, rows):
+                f.write(json.dumps({"size": list(s.obstacles.shape), **r}) + "\n")
+    overlap = np.array([r["overlap"] for r in rows])
+    tsf = np.array([r["time_save"] for r in rows])
+    print(json.dumps(dict(planner=args.planner, scenarios=len(rows), agents=args.agents,
+                          overlap_mean=round(float(overlap.mean()), 4),
+                          time_save_mean=round(float(tsf.mean()), 4),
+                          plan_ms_per_map=round(1000 * seconds / len(rows), 2))))
+
+
+if __name__ == "__main__":
+    try:
+        main(tyro.cli(Args))
+    except ValueError as e:
+        raise SystemExit(f"error: {e}")
