@@ -433,7 +433,7 @@ class Args:
     planner: str = "greedy"
     """one of greedy, boustrophedon, spiral-stc, wavefront, lkh, partition"""
     maps: tuple[str, ...] = ()
-    """MovingAI .map or ASCII map files (starts from the file, --starts or --seed)"""
+    """MovingAI .map or ASCII map files (starts from the file, else drawn with --seed)"""
     dataset: str | None = None
     """a gridworld .npz dataset (e.g. maps/cpp_eval.npz)"""
     agents: int = 1
@@ -444,6 +444,11 @@ class Args:
     """seed for starts drawn at random"""
     out: str | None = None
     """write one JSON line of metrics per scenario here"""
+    report: bool = False
+    """instead: run every planner on maps/cpp_eval.npz (--per-size maps per size), the external
+    maps and maps/marl_eval.npz, write results/classical_cpp.json and print the README tables"""
+    per_size: int = 20
+    """maps per size for --report (LKH takes seconds per map)"""
 
 
 def load_scenarios(args: Args) -> list[Scenario]:
@@ -458,34 +463,99 @@ def load_scenarios(args: Args) -> list[Scenario]:
     for s in scenarios:
         if s.starts is not None and len(s.starts) >= args.agents:
             s.starts = s.starts[:args.agents]
-            continue
-        free = np.argwhere(~s.obstacles)
-        if len(free) <= args.agents:
-            raise ValueError(f"a map has {len(free)} free cells for {args.agents} agents")
-        s.starts = free[rng.choice(len(free), args.agents, replace=False)]
-        s.covered = None
-    for s in scenarios:  # the starts are covered from the first step (Algorithm 9 line 17)
-        s.covered = (np.zeros_like(s.obstacles) if s.covered is None else s.covered.copy())
-        s.covered[s.starts[:, 0], s.starts[:, 1]] = True
+        else:
+            free = np.argwhere(~s.obstacles)
+            if len(free) <= args.agents:
+                raise ValueError(f"a map has {len(free)} free cells for {args.agents} agents")
+            s.starts = free[rng.choice(len(free), args.agents, replace=False)]
+        s.covered = None if s.covered is None else s.covered & ~s.obstacles
+        with_starts(s)
     return scenarios
 
 
-def main(args: Args) -> None:
-    scenarios = load_scenarios(args)
+def with_starts(s: Scenario) -> Scenario:
+    """Mark the start cells covered (Algorithm 9 line 17), as gridworld does at reset."""
+    s.covered = np.zeros_like(s.obstacles) if s.covered is None else s.covered.copy()
+    s.covered[s.starts[:, 0], s.starts[:, 1]] = True
+    return s
+
+
+def evaluate(name: str, scenarios: list[Scenario]) -> tuple[list[dict], float]:
     t0 = time.perf_counter()
-    paths = plan(args.planner, scenarios)
+    paths = plan(name, scenarios)
     seconds = time.perf_counter() - t0
-    rows = [replay(s, p) for s, p in zip(scenarios, paths)]
+    return [replay(s, p) for s, p in zip(scenarios, paths)], 1000 * seconds / len(scenarios)
+
+
+def report(per_size: int) -> None:
+    """The README tables: mean overlap by size band on cpp_eval, per external map, and the
+    multi-agent baselines' time-save factor on marl_eval."""
+    bands = [(5, 10), (11, 15), (16, 20), (21, 25), (26, 30)]
+    data = np.load("maps/cpp_eval.npz")
+    keep = np.concatenate([np.flatnonzero(data["size"] == s)[:per_size] for s in range(5, 31)])
+    all_maps = gridworld.load_dataset("maps/cpp_eval.npz")
+    cpp = [all_maps[i] for i in keep]
+    sizes = data["size"][keep]
+    refs = json.load(open("maps/external/references.json"))
+    external = [(name, with_starts(Scenario(gridworld.load_map(f"maps/external/{name}").obstacles,
+                                            np.array([r["start"]]))))
+                for name, rs in refs.items() for r in rs]
+    result = {"per_size": per_size, "lkh_time_limit_s": LKH_TIME_LIMIT, "cpp_eval": {},
+              "external": {}, "marl_eval": {}}
+    for name in ("greedy", "boustrophedon", "spiral-stc", "wavefront", "lkh"):
+        rows, ms = evaluate(name, cpp)
+        overlap = np.array([r["overlap"] for r in rows])
+        result["cpp_eval"][name] = {
+            "plan_ms_per_map": round(ms, 2), "all": round(float(overlap.mean()), 4),
+            **{f"{a}-{b}": round(float(overlap[(sizes >= a) & (sizes <= b)].mean()), 4) for a, b in bands}}
+        rows, _ = evaluate(name, [s for _, s in external])
+        for (m, _), r in zip(external, rows):
+            result["external"].setdefault(m, {}).setdefault(name, []).append(r["overlap"])
+        print(name, json.dumps(result["cpp_eval"][name]), flush=True)
+    marl = gridworld.load_dataset("maps/marl_eval.npz")
+    msizes = np.load("maps/marl_eval.npz")["size"]
+    for n in (2, 5, 10):
+        chosen = [with_starts(Scenario(s.obstacles, s.starts[:n]))
+                  for s, z in zip(marl, msizes) if z >= 10][::5]
+        bound = np.mean([lower_bound(s) / max(int((~s.obstacles).sum()) - n, 1) for s in chosen])
+        entry = {"maps": len(chosen), "lower_bound_time_save": round(float(bound), 4)}
+        for name in ("greedy", "partition"):
+            rows, _ = evaluate(name, chosen)
+            entry[name] = round(float(np.mean([r["time_save"] for r in rows])), 4)
+        result["marl_eval"][str(n)] = entry
+        print(n, json.dumps(entry), flush=True)
+    with open("results/classical_cpp.json", "w") as f:
+        json.dump(result, f, indent=1)
+    names = list(result["cpp_eval"])
+    print("\n| planner | " + " | ".join(f"{a}–{b}" for a, b in bands) + " | all | plan ms/map |")
+    print("|---" * (len(bands) + 3) + "|")
+    for name in names:
+        r = result["cpp_eval"][name]
+        print(f"| {name} | " + " | ".join(f"{r[f'{a}-{b}']:.3f}" for a, b in bands)
+              + f" | {r['all']:.3f} | {r['plan_ms_per_map']:.1f} |")
+    print("\n| map | " + " | ".join(names) + " |")
+    print("|---" * (len(names) + 1) + "|")
+    for m, per in result["external"].items():
+        print(f"| {m} | " + " | ".join(f"{np.mean(per[n]):.3f}" for n in names) + " |")
+    print("\n| agents | maps | greedy (claims) | partition | lower bound |")
+    print("|---|---|---|---|---|")
+    for n, e in result["marl_eval"].items():
+        print(f"| {n} | {e['maps']} | {e['greedy']:.3f} | {e['partition']:.3f} | {e['lower_bound_time_save']:.3f} |")
+
+
+def main(args: Args) -> None:
+    if args.report:
+        return report(args.per_size)
+    scenarios = load_scenarios(args)
+    rows, ms = evaluate(args.planner, scenarios)
     if args.out:
         with open(args.out, "w") as f:
             for s, r in zip(scenarios, rows):
                 f.write(json.dumps({"size": list(s.obstacles.shape), **r}) + "\n")
-    overlap = np.array([r["overlap"] for r in rows])
-    tsf = np.array([r["time_save"] for r in rows])
     print(json.dumps(dict(planner=args.planner, scenarios=len(rows), agents=args.agents,
-                          overlap_mean=round(float(overlap.mean()), 4),
-                          time_save_mean=round(float(tsf.mean()), 4),
-                          plan_ms_per_map=round(1000 * seconds / len(rows), 2))))
+                          overlap_mean=round(float(np.mean([r["overlap"] for r in rows])), 4),
+                          time_save_mean=round(float(np.mean([r["time_save"] for r in rows])), 4),
+                          plan_ms_per_map=round(ms, 2))))
 
 
 if __name__ == "__main__":
