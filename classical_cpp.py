@@ -103,6 +103,12 @@ def _cells(grid: Grid, path: list[int]) -> np.ndarray:
     return np.stack(np.divmod(np.asarray(path, np.int64), grid.w), 1)
 
 
+def _grid(scenario: Scenario) -> Grid:
+    """The scenario's free-cell graph, after gridworld's checks (starts, connectivity)."""
+    gridworld.check_scenario(scenario, "scenario")
+    return Grid(scenario.obstacles)
+
+
 def _start(scenario: Scenario, grid: Grid) -> int:
     if scenario.starts is None or len(scenario.starts) != 1:
         raise ValueError("a single-agent planner needs exactly one start")
@@ -130,7 +136,7 @@ def boustrophedon(scenario: Scenario) -> list[np.ndarray]:
     """BA*-style coverage: move N, else S, else E, else W into an uncovered cell (column-wise
     back-and-forth sweeps); at a dead end, walk a shortest path to the nearest uncovered cell
     (ties: first in row-major order) and sweep on."""
-    grid = Grid(scenario.obstacles)
+    grid = _grid(scenario)
     pos = _start(scenario, grid)
     todo = _uncovered(scenario, grid)
     todo[pos] = False
@@ -158,7 +164,7 @@ def wavefront(scenario: Scenario) -> list[np.ndarray]:
     goal (the free cell farthest from the start); the robot steps to the uncovered neighbour
     with the highest value, else walks a shortest path (no jumps) to the nearest uncovered
     cell, ties going to the highest value."""
-    grid = Grid(scenario.obstacles)
+    grid = _grid(scenario)
     pos = _start(scenario, grid)
     goal = int(np.argmax(grid.bfs(pos)))
     transform = grid.bfs(goal)
@@ -179,16 +185,25 @@ def wavefront(scenario: Scenario) -> list[np.ndarray]:
 
 def spiral_stc(scenario: Scenario) -> list[np.ndarray]:
     """Spiral-STC (Gabriely & Rimon) on 2x2 blocks. A block is usable if ANY of its cells is
-    free, so partly blocked blocks are covered too: the spanning tree of usable blocks is grown
-    depth-first with a spiral (counter-clockwise) preference, its circumnavigation visits the
-    cells of every tree block in order, blocked cells are skipped and consecutive free cells
-    are joined by shortest paths; cells of blocks the tree misses are finished greedily."""
-    grid = Grid(scenario.obstacles)
+    free, so partly blocked blocks are covered too: the spanning tree of usable blocks (joined
+    where two facing cells are free) is grown depth-first with a spiral (counter-clockwise)
+    preference, its circumnavigation visits the cells of every tree block in order, blocked
+    cells are skipped and consecutive free cells are joined by shortest paths; cells of blocks
+    the tree misses are finished greedily."""
+    grid = _grid(scenario)
     h, w = grid.h, grid.w
     H, W = -(-h // 2), -(-w // 2)
-    usable = np.zeros((H, W), bool)
-    for y, x in zip(*np.nonzero(~scenario.obstacles)):
-        usable[y // 2, x // 2] = True
+    free = np.zeros((2 * H, 2 * W), bool)
+    free[:h, :w] = ~scenario.obstacles
+    usable = free.reshape(H, 2, W, 2).any((1, 3))
+    # blocks are neighbours only where two facing cells are both free (a real passage)
+    east = (free[0::2, 1::2][:, :-1] & free[0::2, 2::2]) | (free[1::2, 1::2][:, :-1] & free[1::2, 2::2])
+    south = (free[1::2, 0::2][:-1] & free[2::2, 0::2]) | (free[1::2, 1::2][:-1] & free[2::2, 1::2])
+
+    def joined(a, b):
+        if a[0] == b[0]:
+            return east[a[0], min(a[1], b[1])]
+        return south[min(a[0], b[0]), a[1]]
     pos = _start(scenario, grid)
     root = (pos // w // 2, pos % w // 2)
     # the spanning tree: depth-first, turning counter-clockwise from where we came from
@@ -200,7 +215,7 @@ def spiral_stc(scenario: Scenario) -> list[np.ndarray]:
         for turn in range(4):
             k = (heading + 1 + turn) % 4  # start left of the heading: a spiral
             nb = (block[0] + ccw[k][0], block[1] + ccw[k][1])
-            if 0 <= nb[0] < H and 0 <= nb[1] < W and usable[nb] and nb not in tree:
+            if 0 <= nb[0] < H and 0 <= nb[1] < W and usable[nb] and nb not in tree and joined(block, nb):
                 tree[nb] = []
                 tree[block].append(nb)
                 stack.append((nb, (k + 2) % 4))
@@ -264,7 +279,7 @@ def lkh(scenario: Scenario, time_limit: float = LKH_TIME_LIMIT, runs: int = 1) -
     LKH's closed tour into a path with a fixed start and a free end."""
     import elkai._elkai as lkh3  # the solver's own entry point, so a time limit can be set
 
-    grid = Grid(scenario.obstacles)
+    grid = _grid(scenario)
     pos = _start(scenario, grid)
     cities = [pos] + [int(c) for c in np.flatnonzero(_uncovered(scenario, grid)) if c != pos]
     if len(cities) <= 2:
@@ -335,7 +350,7 @@ def partition(scenario: Scenario) -> list[np.ndarray]:
     starts breadth-first, always extending the currently smallest region (so each region is
     connected and sizes stay as even as the map allows); each agent then covers its region
     alone, treating other regions as walls, so the agents never meet."""
-    grid = Grid(scenario.obstacles)
+    grid = _grid(scenario)
     starts = [int(y) * grid.w + int(x) for y, x in scenario.starts]
     owner = np.full(grid.h * grid.w, -1)
     frontier = [deque([s]) for s in starts]
@@ -370,9 +385,13 @@ def partition(scenario: Scenario) -> list[np.ndarray]:
 
 
 def lower_bound(scenario: Scenario) -> int:
-    """No schedule of N agents finishes in fewer steps: each step covers at most N cells."""
-    n = len(scenario.starts)
-    return math.ceil(((~scenario.obstacles).sum() - n) / n)
+    """No schedule of N agents finishes in fewer steps than ceil(n_poi / N): each step covers
+    at most N cells (n_poi = free cells not yet covered; ceil((n_free - N) / N) when only the
+    starts are)."""
+    covered = np.zeros_like(scenario.obstacles) if scenario.covered is None else scenario.covered
+    covered = covered.copy()
+    covered[scenario.starts[:, 0], scenario.starts[:, 1]] = True
+    return math.ceil((~scenario.obstacles & ~covered).sum() / len(scenario.starts))
 
 
 PLANNERS = {"greedy": greedy, "boustrophedon": boustrophedon, "spiral-stc": spiral_stc,

@@ -485,6 +485,8 @@ class GridWorldCore:
                 agents = len(s.starts) if config.load_state else n
                 if (~s.obstacles).sum() <= agents:
                     raise ValueError(f"{source}[{i}]: {agents} agent(s) leave no free cell to cover")
+                if config.load_state and s.covered is not None and not (~s.obstacles & ~s.covered).any():
+                    raise ValueError(f"{source}[{i}]: every free cell is already covered")
         if config.starting_position is not None and not config.starting_position_random:
             st = np.atleast_2d(np.asarray(config.starting_position))
             if st.ndim != 2 or st.shape[1] != 2 or len(st) != n:
