@@ -22,6 +22,7 @@ from __future__ import annotations
 import heapq
 import json
 import math
+import os
 import time
 from collections import deque
 from dataclasses import dataclass
@@ -34,6 +35,7 @@ from gridworld import EnvConfig, GridWorldCore, Scenario
 
 MOVES = ((-1, 0), (1, 0), (0, -1), (0, 1))  # N, S, W, E: the gridworld action order
 LKH_TIME_LIMIT = 10.0  # seconds of LKH search per map (plus reading the problem)
+ROOT = os.path.dirname(os.path.abspath(__file__))
 
 
 # ----------------------------------------------------------------------------- the grid graph
@@ -283,7 +285,8 @@ def lkh(scenario: Scenario, time_limit: float = LKH_TIME_LIMIT, runs: int = 1) -
     pos = _start(scenario, grid)
     cities = [pos] + [int(c) for c in np.flatnonzero(_uncovered(scenario, grid)) if c != pos]
     if len(cities) <= 2:
-        return [_cells(grid, [pos] + (grid.walk(pos, cities[1], grid.bfs(cities[1])) if len(cities) > 1 else []))]
+        path = [pos] + [c for t in cities[1:] for c in grid.walk(pos, t, grid.bfs(t))]
+        return [_cells(grid, path)]
     dist = np.stack([grid.bfs(c)[cities] for c in cities])
     if (dist < 0).any():
         raise ValueError("some free cells are unreachable from the start")
@@ -510,15 +513,17 @@ def report(per_size: int) -> None:
     """The README tables: mean overlap by size band on cpp_eval, per external map, and the
     multi-agent baselines' time-save factor on marl_eval."""
     bands = [(5, 10), (11, 15), (16, 20), (21, 25), (26, 30)]
-    data = np.load("maps/cpp_eval.npz")
+    maps = os.path.join(ROOT, "maps")
+    data = np.load(os.path.join(maps, "cpp_eval.npz"))
     keep = np.concatenate([np.flatnonzero(data["size"] == s)[:per_size] for s in range(5, 31)])
-    all_maps = gridworld.load_dataset("maps/cpp_eval.npz")
+    all_maps = gridworld.load_dataset(os.path.join(maps, "cpp_eval.npz"))
     cpp = [all_maps[i] for i in keep]
     sizes = data["size"][keep]
-    refs = json.load(open("maps/external/references.json"))
-    external = [(name, with_starts(Scenario(gridworld.load_map(f"maps/external/{name}").obstacles,
-                                            np.array([r["start"]]))))
-                for name, rs in refs.items() for r in rs]
+    refs = json.load(open(os.path.join(maps, "external", "references.json")))
+    external = []  # every map with each of its reference starts
+    for name, rs in refs.items():
+        grid = gridworld.load_map(os.path.join(maps, "external", name)).obstacles
+        external += [(name, with_starts(Scenario(grid, np.array([r["start"]])))) for r in rs]
     result = {"per_size": per_size, "lkh_time_limit_s": LKH_TIME_LIMIT, "cpp_eval": {},
               "external": {}, "marl_eval": {}}
     for name in ("greedy", "boustrophedon", "spiral-stc", "wavefront", "lkh"):
@@ -531,8 +536,8 @@ def report(per_size: int) -> None:
         for (m, _), r in zip(external, rows):
             result["external"].setdefault(m, {}).setdefault(name, []).append(r["overlap"])
         print(name, json.dumps(result["cpp_eval"][name]), flush=True)
-    marl = gridworld.load_dataset("maps/marl_eval.npz")
-    msizes = np.load("maps/marl_eval.npz")["size"]
+    marl = gridworld.load_dataset(os.path.join(maps, "marl_eval.npz"))
+    msizes = np.load(os.path.join(maps, "marl_eval.npz"))["size"]
     for n in (2, 5, 10):
         chosen = [with_starts(Scenario(s.obstacles, s.starts[:n]))
                   for s, z in zip(marl, msizes) if z >= 10][::5]
@@ -543,7 +548,8 @@ def report(per_size: int) -> None:
             entry[name] = round(float(np.mean([r["time_save"] for r in rows])), 4)
         result["marl_eval"][str(n)] = entry
         print(n, json.dumps(entry), flush=True)
-    with open("results/classical_cpp.json", "w") as f:
+    os.makedirs(os.path.join(ROOT, "results"), exist_ok=True)
+    with open(os.path.join(ROOT, "results", "classical_cpp.json"), "w") as f:
         json.dump(result, f, indent=1)
     names = list(result["cpp_eval"])
     print("\n| planner | " + " | ".join(f"{a}–{b}" for a, b in bands) + " | all | plan ms/map |")
@@ -559,7 +565,8 @@ def report(per_size: int) -> None:
     print("\n| agents | maps | greedy (claims) | partition | lower bound |")
     print("|---|---|---|---|---|")
     for n, e in result["marl_eval"].items():
-        print(f"| {n} | {e['maps']} | {e['greedy']:.3f} | {e['partition']:.3f} | {e['lower_bound_time_save']:.3f} |")
+        print(f"| {n} | {e['maps']} | {e['greedy']:.3f} | {e['partition']:.3f} "
+              f"| {e['lower_bound_time_save']:.3f} |")
 
 
 def main(args: Args) -> None:

@@ -382,7 +382,8 @@ def _invalid_scenarios(obstacles: np.ndarray, sizes: np.ndarray, starts: np.ndar
     bad = ~free.any((1, 2)) | (_flood(free, seed) != free).any((1, 2))
     used = starts[..., 0] >= 0
     y, x = np.clip(starts[..., 0], 0, H - 1), np.clip(starts[..., 1], 0, W - 1)
-    outside = (starts[..., 0] >= sizes[:, None, 0]) | (starts[..., 1] >= sizes[:, None, 1]) | (starts[..., 1] < 0)
+    outside = ((starts[..., 0] >= sizes[:, None, 0]) | (starts[..., 1] >= sizes[:, None, 1])
+               | (starts[..., 1] < 0))
     on_obstacle = obstacles[np.arange(M)[:, None], y, x]
     same = (starts[:, :, None] == starts[:, None, :]).all(-1) & used[:, :, None] & used[:, None, :]
     duplicate = same.sum((1, 2)) > used.sum(1)
