@@ -1,0 +1,179 @@
+"""Evaluate an agent or a planner on maps; one row per episode, and a summary.
+
+    python evaluate.py --policy greedy --dataset maps/cpp_eval.npz --out runs/eval/greedy
+    python evaluate.py --policy lkh --maps maps/external/room-32-32-4.map --starts starts.json --out DIR
+    python evaluate.py --policy partition --dataset maps/marl_eval.npz --agents 5 --out DIR
+
+Writes DIR/episodes.csv (map, size, n_free, agents, start, steps, revisits, overlap, time_save,
+completed, truncated, heuristic_steps) and DIR/summary.json (mean, median, std, min, max of
+overlap, time-save factor and steps, completion rate; overall and by map size). Every metric is
+counted by gridworld's own environment. Policies: the planners of classical_cpp.py (greedy,
+boustrophedon, spiral-stc, wavefront, lkh, partition); the learned agents (rainbow, marl,
+tabular) plug in as their scripts land.
+"""
+from __future__ import annotations
+
+import csv
+import json
+import os
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+
+import numpy as np
+import tyro
+from tqdm import tqdm
+
+import classical_cpp
+import gridworld
+from gridworld import Scenario
+
+LEARNED = {"rainbow": "rainbow_cpp.py", "marl": "rainbow_marl.py", "tabular": "tabular_q.py"}
+COLUMNS = ["map", "size", "n_free", "agents", "start", "steps", "revisits", "overlap", "time_save",
+           "completed", "truncated", "heuristic_steps"]
+
+
+@dataclass
+class Args:
+    policy: str = "greedy"
+    """a classical_cpp planner (greedy, boustrophedon, spiral-stc, wavefront, lkh, partition) or a
+    learned agent (rainbow, marl, tabular)"""
+    checkpoint: str | None = None
+    """weights / table of a learned agent"""
+    maps: tuple[str, ...] = ()
+    """MovingAI .map or ASCII map files"""
+    dataset: str | None = None
+    """a gridworld .npz dataset (maps/cpp_eval.npz, maps/marl_eval.npz, ...)"""
+    agents: int = 1
+    """agents per episode: the first N stored starts, else N starts drawn with --seed"""
+    starts: str | None = None
+    """JSON file {map file name: [[row, col], ...]}: agent i starts at entry i; with one agent
+    and several entries, one episode per entry"""
+    seed: int = 0
+    """seed for starts drawn at random"""
+    limit: int = 0
+    """evaluate only the first LIMIT scenarios (0: all)"""
+    workers: int = 1
+    """processes to spread the episodes over"""
+    out: str = "runs/eval"
+    """output folder for episodes.csv and summary.json"""
+
+
+def scenarios_from(args: Args) -> list[tuple[str, Scenario]]:
+    """(map name, scenario with starts covered) for every episode asked for."""
+    if args.agents < 1:
+        raise ValueError(f"--agents must be >= 1, got {args.agents}")
+    named: list[tuple[str, Scenario]] = []
+    if args.dataset:
+        base = os.path.basename(args.dataset)
+        named += [(f"{base}[{i}]", s) for i, s in enumerate(gridworld.load_dataset(args.dataset))]
+    for path in args.maps:
+        named.append((os.path.basename(path), gridworld.load_map(path)))
+    if not named:
+        raise ValueError("give --maps FILE... or --dataset FILE")
+    if args.limit:
+        named = named[:args.limit]
+    given = {}
+    if args.starts:
+        try:
+            with open(args.starts) as f:
+                given = json.load(f)
+        except (OSError, json.JSONDecodeError) as e:
+            raise ValueError(f"{args.starts}: cannot read starts ({e})") from None
+    rng = np.random.default_rng(args.seed)
+    episodes = []
+    for name, s in named:
+        if name in given:
+            cells = np.asarray(given[name], np.int64).reshape(-1, 2)
+            groups = ([cells[i:i + 1] for i in range(len(cells))] if args.agents == 1
+                      else [cells[:args.agents]])
+            if len(groups[0]) < args.agents:
+                raise ValueError(f"{args.starts}: {name} has {len(cells)} starts for {args.agents} agents")
+        elif s.starts is not None and len(s.starts) >= args.agents:
+            groups = [s.starts[:args.agents]]
+        else:
+            free = np.argwhere(~s.obstacles)
+            if len(free) <= args.agents:
+                raise ValueError(f"{name}: {len(free)} free cells for {args.agents} agents")
+            groups = [free[rng.choice(len(free), args.agents, replace=False)]]
+        for starts in groups:
+            scenario = classical_cpp.with_starts(Scenario(s.obstacles, starts, s.covered))
+            gridworld.check_scenario(scenario, name)
+            episodes.append((name, scenario))
+    return episodes
+
+
+def run_planner(policy: str, episodes: list[tuple[str, Scenario]]) -> list[dict]:
+    """Plan and replay every episode; one row per episode."""
+    paths = classical_cpp.plan(policy, [s for _, s in episodes])
+    rows = []
+    for (name, s), p in zip(episodes, paths):
+        m = classical_cpp.replay(s, p)
+        rows.append(dict(map=name, size=f"{s.obstacles.shape[0]}x{s.obstacles.shape[1]}",
+                         n_free=int((~s.obstacles).sum()), agents=len(s.starts),
+                         start=json.dumps(s.starts.tolist()), steps=m["steps"],
+                         revisits=m["revisits"], overlap=round(m["overlap"], 6),
+                         time_save=round(m["time_save"], 6), completed=m["completed"],
+                         truncated=False, heuristic_steps=0))
+    return rows
+
+
+def _run_chunk(job):
+    policy, chunk = job
+    return run_planner(policy, chunk)
+
+
+def summarize(rows: list[dict]) -> dict:
+    def stats(group):
+        out = {"episodes": len(group),
+               "completion_rate": float(np.mean([r["completed"] for r in group]))}
+        for key in ("overlap", "time_save", "steps"):
+            v = np.array([r[key] for r in group], float)
+            out[key] = dict(mean=float(v.mean()), median=float(np.median(v)), std=float(v.std()),
+                            min=float(v.min()), max=float(v.max()))
+        return out
+
+    sizes = sorted({r["size"] for r in rows}, key=lambda z: tuple(map(int, z.split("x"))))
+    return {"all": stats(rows), "by_size": {z: stats([r for r in rows if r["size"] == z]) for z in sizes}}
+
+
+def main(args: Args) -> dict:
+    if args.policy in LEARNED:
+        script = LEARNED[args.policy]
+        raise ValueError(f"--policy {args.policy} needs {script}, which is not in this repository yet")
+    if args.policy not in classical_cpp.PLANNERS:
+        raise ValueError(f"unknown policy {args.policy!r}; choose from "
+                         f"{sorted(classical_cpp.PLANNERS) + sorted(LEARNED)}")
+    episodes = scenarios_from(args)
+    rows = []
+    if args.workers > 1:  # contiguous chunks, so the rows keep the episodes' order
+        k = -(-len(episodes) // args.workers)
+        chunks = [episodes[i:i + k] for i in range(0, len(episodes), k)]
+        with ProcessPoolExecutor(args.workers) as pool:
+            for part in tqdm(pool.map(_run_chunk, [(args.policy, c) for c in chunks]),
+                             total=len(chunks), desc=args.policy):
+                rows += part
+    else:
+        step = 64  # planned in slices so the progress bar moves
+        for i in tqdm(range(0, len(episodes), step), desc=args.policy):
+            rows += run_planner(args.policy, episodes[i:i + step])
+    os.makedirs(args.out, exist_ok=True)
+    with open(os.path.join(args.out, "episodes.csv"), "w", newline="") as f:
+        writer = csv.DictWriter(f, COLUMNS)
+        writer.writeheader()
+        writer.writerows(rows)
+    summary = {"policy": args.policy, "dataset": args.dataset, "maps": list(args.maps),
+               "agents": args.agents, "seed": args.seed, **summarize(rows)}
+    with open(os.path.join(args.out, "summary.json"), "w") as f:
+        json.dump(summary, f, indent=1)
+    s = summary["all"]
+    print(f"{args.policy}: {s['episodes']} episodes, overlap {s['overlap']['mean']:.4f}, "
+          f"time-save {s['time_save']['mean']:.4f}, completed {100 * s['completion_rate']:.1f}%"
+          f" -> {args.out}")
+    return summary
+
+
+if __name__ == "__main__":
+    try:
+        main(tyro.cli(Args))
+    except ValueError as e:
+        raise SystemExit(f"error: {e}")
