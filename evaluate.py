@@ -51,6 +51,16 @@ class Args:
     and several entries, one episode per entry"""
     seed: int = 0
     """seed for starts drawn at random"""
+    sensor: str = "full"
+    """full, camera or lidar (learned policies; the planners plan with full information)"""
+    sensor_range: int = 3
+    """sensor range K in cells"""
+    sensor_failure: float = 0.0
+    """fraction of steps whose sensor reading is dropped (§6.5.3.3)"""
+    faulty_agent_at: float | None = None
+    """freeze the last agent after this fraction of the episode's battery (§7.5.3.3)"""
+    heuristic: bool = True
+    """learned policies: hand over to the navigation heuristic when stuck (§6.5.2.1)"""
     limit: int = 0
     """evaluate only the first LIMIT scenarios (0: all)"""
     workers: int = 1
@@ -144,6 +154,9 @@ def main(args: Args) -> dict:
     if args.policy not in classical_cpp.PLANNERS:
         raise ValueError(f"unknown policy {args.policy!r}; choose from "
                          f"{sorted(classical_cpp.PLANNERS) + sorted(LEARNED)}")
+    if args.sensor != "full" or args.sensor_failure or args.faulty_agent_at is not None:
+        raise ValueError("the classical planners plan with full information and no faults; "
+                         "--sensor, --sensor-failure and --faulty-agent-at apply to learned policies")
     episodes = scenarios_from(args)
     rows = []
     if args.workers > 1:  # contiguous chunks, so the rows keep the episodes' order

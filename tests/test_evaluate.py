@@ -102,3 +102,9 @@ def test_report_redraws_from_saved_results(tmp_path):
     saved = json.loads((tmp_path / "classical_cpp.json").read_text())
     assert f"| lkh | {saved['cpp_eval']['lkh']['5-10']:.3f} |" in text
     assert text.count("*Not trained yet:*") == 5  # learned agents say so instead of a number
+
+
+def test_sensor_settings_are_refused_for_planners(tmp_path):
+    with pytest.raises(ValueError, match="full information"):
+        evaluate.main(evaluate.Args(policy="greedy", dataset=str(ROOT / "maps/cpp_eval.npz"),
+                                    limit=1, sensor="camera", out=str(tmp_path)))
