@@ -104,6 +104,7 @@ class EnvConfig:
     starting_position_random: bool = True
     random_coverage: bool = False
     random_coverage_max: float = 0.7
+    random_coverage_prob: float = 1.0
     number_points_of_interest: int = 0
     map_configuration: str | None = None
     dataset_path: str | None = None
@@ -154,6 +155,8 @@ class EnvConfig:
             bad(f"number_agents must be >= 1, got {self.number_agents}")
         if self.sensor_range < 1:
             bad(f"sensor_range must be >= 1, got {self.sensor_range}")
+        if not 0.0 <= self.random_coverage_prob <= 1.0:
+            bad(f"random_coverage_prob must be in [0, 1], got {self.random_coverage_prob}")
         if not 0.0 <= self.random_coverage_max < 1.0:
             bad(f"random_coverage_max must be in [0, 1), got {self.random_coverage_max}")
         if not 0.0 <= self.sensor_failure <= 1.0:
@@ -564,8 +567,10 @@ class GridWorldCore:
         return np.stack([y - self.c, x - self.c], -1)
 
     # --- episode initialisation (Algorithm 9) -------------------------------------------
-    def reset(self, worlds=None) -> None:
-        """Start new episodes in the given worlds (all by default; a bool mask or indices)."""
+    def reset(self, worlds=None, scenarios: list[Scenario] | None = None) -> None:
+        """Start new episodes in the given worlds (all by default; a bool mask or indices), or
+        restart them in given scenarios (their maps, starts and coverage; e.g. episodes kept
+        because the agent failed them, §6.4.2.3)."""
         cfg, rng = self.config, self.rng
         if worlds is None:
             w = np.arange(self.B)
@@ -575,6 +580,25 @@ class GridWorldCore:
         if len(w) == 0:
             return
         k, H, W, N = len(w), self.H, self.W, self.N
+        if scenarios is not None:
+            if len(scenarios) != k:
+                raise ValueError(f"{len(scenarios)} scenarios for {k} worlds")
+            check_scenarios(scenarios)
+            obstacles, hw, starts, covered = _stack(scenarios)
+            if obstacles.shape[1] > H or obstacles.shape[2] > W or starts.shape[1] > N:
+                raise ValueError(f"scenarios larger than the worlds ({H}x{W}, {N} agents)")
+            active = starts[..., 0] >= 0
+            pad = np.ones((k, H, W), bool)
+            pad[:, :obstacles.shape[1], :obstacles.shape[2]] = obstacles
+            cov = np.zeros((k, H, W), bool)
+            cov[:, :covered.shape[1], :covered.shape[2]] = covered
+            full = np.zeros((k, N, 2), np.int64)
+            full[:, :starts.shape[1]] = np.maximum(starts, 0)
+            act = np.zeros((k, N), bool)
+            act[:, :starts.shape[1]] = active
+            start_mask = np.zeros((k, H, W), bool)
+            start_mask[np.arange(k)[:, None], full[..., 0], full[..., 1]] = act
+            return self._init_worlds(w, pad, hw.astype(np.int64), full, act, start_mask, cov)
         if self.scenarios is None:
             while len(self.pool[0]) < k:  # maps are drawn in batches: one reset is cheap
                 self._draw_maps(max(64, k))
@@ -679,7 +703,7 @@ class GridWorldCore:
         free = ~obstacle
         covered = covered0 & free
         if cfg.random_coverage:  # §6.4.2.5 / Table 4.1: up to a fraction pre-covered
-            frac = rng.random(k) * cfg.random_coverage_max
+            frac = rng.random(k) * cfg.random_coverage_max * (rng.random(k) < cfg.random_coverage_prob)
             covered |= free & (rng.random((k, H, W)) < frac[:, None, None])
         if cfg.number_points_of_interest > 0:  # n-point coverage; 1 = point-to-point
             candidates = free & ~start_mask

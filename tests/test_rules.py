@@ -661,3 +661,32 @@ def test_partial_reset_leaves_other_worlds_untouched():
     # reset by indices works too
     core.reset([3])
     assert core.steps[3] == 0 and core.steps[1] == snap["steps"][1]
+
+
+def test_reset_into_given_scenarios_restores_a_snapshot():
+    core = gw.GridWorldCore(gw.EnvConfig(size=9, number_obstacles=8), num_worlds=3, seed=2)
+    core.reset()
+    rng = np.random.default_rng(0)
+    for _ in range(6):
+        core.step(rng.integers(0, 4, (3, 1)))
+    kept = core.snapshot([1])  # world 1 as it is now: map, agent cell, coverage
+    other = core.snapshot([0, 2])
+    core.reset([2], scenarios=kept)
+    assert (core.agent_cells()[2] == kept[0].starts).all()
+    obstacle, covered = world_map(core, 2)
+    assert (obstacle == kept[0].obstacles).all() and (covered == kept[0].covered).all()
+    assert core.steps[2] == 0 and core.battery[2] == core.budget[2]
+    again = core.snapshot([0])[0]  # world 0 untouched
+    assert (again.covered == other[0].covered).all()
+    with pytest.raises(ValueError, match="2 scenarios for 1 worlds"):
+        core.reset([0], scenarios=kept * 2)
+
+
+def test_random_coverage_probability():
+    cfg = gw.EnvConfig(size=10, random_coverage=True, random_coverage_max=0.66, random_coverage_prob=0.5)
+    core = gw.GridWorldCore(cfg, num_worlds=400, seed=3)
+    core.reset()
+    pre = core.n_free - core.n_poi_start - 1  # pre-covered cells besides the start
+    assert 0.35 < (pre == 0).mean() < 0.65  # about half the episodes start uncovered
+    with pytest.raises(ValueError, match="random_coverage_prob"):
+        gw.EnvConfig(random_coverage_prob=1.5).validate()
