@@ -8,8 +8,9 @@ Writes DIR/episodes.csv (map, size, n_free, agents, start, steps, revisits, over
 completed, truncated, heuristic_steps) and DIR/summary.json (mean, median, std, min, max of
 overlap, time-save factor and steps, completion rate; overall and by map size). Every metric is
 counted by gridworld's own environment. Policies: the planners of classical_cpp.py (greedy,
-boustrophedon, spiral-stc, wavefront, lkh, partition); the learned agents (rainbow, marl,
-tabular) plug in as their scripts land.
+boustrophedon, spiral-stc, wavefront, lkh, partition) and the chapter-6 agent `rainbow`
+(rainbow_cpp.py; --checkpoint, default models/rainbow_cpp.pt, noise off, heuristic fallback
+unless --no-heuristic); marl and tabular plug in as their scripts land.
 """
 from __future__ import annotations
 
@@ -28,7 +29,8 @@ import classical_cpp
 import gridworld
 from gridworld import Scenario
 
-LEARNED = {"rainbow": "rainbow_cpp.py", "marl": "rainbow_marl.py", "tabular": "tabular_q.py"}
+LEARNED = {"marl": "rainbow_marl.py", "tabular": "tabular_q.py"}  # not in the repository yet
+DEFAULT_CHECKPOINT = {"rainbow": "models/rainbow_cpp.pt"}
 COLUMNS = ["map", "size", "n_free", "agents", "start", "steps", "revisits", "overlap", "time_save",
            "completed", "truncated", "heuristic_steps"]
 
@@ -116,16 +118,34 @@ def scenarios_from(args: Args) -> list[tuple[str, Scenario]]:
 def run_planner(policy: str, episodes: list[tuple[str, Scenario]]) -> list[dict]:
     """Plan and replay every episode; one row per episode."""
     paths = classical_cpp.plan(policy, [s for _, s in episodes])
+    return [_row(name, s, classical_cpp.replay(s, p)) for (name, s), p in zip(episodes, paths)]
+
+
+def run_rainbow(args: Args, episodes: list[tuple[str, Scenario]]) -> list[dict]:
+    """The chapter-6 agent (rainbow_cpp.py): noise off, heuristic fallback unless disabled."""
+    import rainbow_cpp
+    if args.agents != 1:
+        raise ValueError("rainbow is single-agent; use --agents 1 (marl for several)")
+    if args.faulty_agent_at is not None:
+        raise ValueError("--faulty-agent-at needs several agents (the marl policy)")
+    q = rainbow_cpp.load_policy(args.checkpoint or DEFAULT_CHECKPOINT["rainbow"])
+    frames = q.conv[0].in_channels // 4
     rows = []
-    for (name, s), p in zip(episodes, paths):
-        m = classical_cpp.replay(s, p)
-        rows.append(dict(map=name, size=f"{s.obstacles.shape[0]}x{s.obstacles.shape[1]}",
-                         n_free=int((~s.obstacles).sum()), agents=len(s.starts),
-                         start=json.dumps(s.starts.tolist()), steps=m["steps"],
-                         revisits=m["revisits"], overlap=round(m["overlap"], 6),
-                         time_save=round(m["time_save"], 6), completed=m["completed"],
-                         truncated=False, heuristic_steps=0))
+    for i in range(0, len(episodes), 64):  # 64 worlds per batched rollout
+        part = episodes[i:i + 64]
+        m = rainbow_cpp.evaluate_policy(q, [s for _, s in part], frames, args.sensor, args.sensor_range,
+                                        args.sensor_failure, args.heuristic)
+        for j, (name, s) in enumerate(part):
+            rows.append(_row(name, s, {k: v[j].item() for k, v in m.items()}))
     return rows
+
+
+def _row(name: str, s: Scenario, m: dict) -> dict:
+    return dict(map=name, size=f"{s.obstacles.shape[0]}x{s.obstacles.shape[1]}",
+                n_free=int((~s.obstacles).sum()), agents=len(s.starts), start=json.dumps(s.starts.tolist()),
+                steps=m["steps"], revisits=m["revisits"], overlap=round(m["overlap"], 6),
+                time_save=round(m["time_save"], 6), completed=m["completed"],
+                truncated=m.get("truncated", False), heuristic_steps=m.get("heuristic_steps", 0))
 
 
 def _run_chunk(job):
@@ -151,9 +171,13 @@ def main(args: Args) -> dict:
     if args.policy in LEARNED:
         script = LEARNED[args.policy]
         raise ValueError(f"--policy {args.policy} needs {script}, which is not in this repository yet")
-    if args.policy not in classical_cpp.PLANNERS:
+    if args.policy not in classical_cpp.PLANNERS and args.policy != "rainbow":
         raise ValueError(f"unknown policy {args.policy!r}; choose from "
-                         f"{sorted(classical_cpp.PLANNERS) + sorted(LEARNED)}")
+                         f"{sorted(classical_cpp.PLANNERS) + ['rainbow'] + sorted(LEARNED)}")
+    if args.sensor not in gridworld.SENSORS:
+        raise ValueError(f"--sensor must be one of {gridworld.SENSORS}, got {args.sensor!r}")
+    if args.policy == "rainbow":
+        return _write(args, run_rainbow(args, scenarios_from(args)))
     if args.sensor != "full" or args.sensor_failure or args.faulty_agent_at is not None:
         raise ValueError("the classical planners plan with full information and no faults; "
                          "--sensor, --sensor-failure and --faulty-agent-at apply to learned policies")
@@ -170,6 +194,10 @@ def main(args: Args) -> dict:
         step = 64  # planned in slices so the progress bar moves
         for i in tqdm(range(0, len(episodes), step), desc=args.policy):
             rows += run_planner(args.policy, episodes[i:i + step])
+    return _write(args, rows)
+
+
+def _write(args: Args, rows: list[dict]) -> dict:
     os.makedirs(args.out, exist_ok=True)
     with open(os.path.join(args.out, "episodes.csv"), "w", newline="") as f:
         writer = csv.DictWriter(f, COLUMNS)

@@ -382,37 +382,40 @@ def stuck(since_new: np.ndarray, moved: np.ndarray, size: np.ndarray) -> np.ndar
     return (since_new > size) | ((since_new >= 5) & (moved <= 2))
 
 
-def evaluate_policy(q: QNetwork, scenarios: list, frames: int, sensor: str, sensor_range: int,
-                    random_ties: bool) -> dict:
-    """Deterministic policy (noise off) with the heuristic fallback of §6.5.2.1 on fixed maps."""
+def evaluate_policy(q: QNetwork, scenarios: list, frames: int, sensor: str = "full", sensor_range: int = 3,
+                    sensor_failure: float = 0.0, heuristic: bool = True, random_ties: bool = False) -> dict:
+    """Run the deterministic policy (noise off) once on each scenario, all at once; with
+    `heuristic` the navigation heuristic takes over while the agent is stuck (§6.5.2.1).
+    Returns per-episode arrays: gridworld's metrics, `truncated` and `heuristic_steps`."""
     core = gridworld.GridWorldCore(gridworld.EnvConfig(load_state=True, load_random=False, sensor=sensor,
-                                                       sensor_range=sensor_range), len(scenarios))
+                                                       sensor_range=sensor_range, sensor_failure=sensor_failure),
+                                   len(scenarios))
     core.configure(scenarios=scenarios)
     core.reset()
-    stack = Stacker(len(scenarios), frames, core.V)
-    stack.push(observe(core), np.ones(len(scenarios), bool))
-    done = np.zeros(len(scenarios), bool)
-    since_new = np.zeros(len(scenarios), np.int64)
+    n = len(scenarios)
+    stack = Stacker(n, frames, core.V)
+    stack.push(observe(core), np.ones(n, bool))
+    done, truncated = np.zeros(n, bool), np.zeros(n, bool)
+    since_new, used = np.zeros(n, np.int64), np.zeros(n, np.int64)
     history = [core.agent_cells()[:, 0]] * 5
-    used = np.zeros(len(scenarios), np.int64)
     q.reset_noise(False)
     with torch.no_grad():
         while not done.all():
             action = q(*to_torch(*stack.get())).argmax(1).numpy()
-            moved = np.abs(core.agent_cells()[:, 0] - history[-5]).sum(1)
-            fallback = stuck(since_new, moved, core.hw.max(1))
-            if fallback.any():
-                action = np.where(fallback, core.heuristic_actions(random_ties)[:, 0], action)
-            used += fallback & ~done
+            if heuristic:
+                moved = np.abs(core.agent_cells()[:, 0] - history[0]).sum(1)
+                fallback = stuck(since_new, moved, core.hw.max(1)) & ~done
+                if fallback.any():
+                    action = np.where(fallback, core.heuristic_actions(random_ties)[:, 0], action)
+                used += fallback
             ev = core.step(np.where(done, gridworld.WAIT, action)[:, None])
             since_new = np.where(ev["new"][:, 0], 0, since_new + 1)
             history = history[1:] + [core.agent_cells()[:, 0]]
+            truncated |= ev["truncated"] & ~done
             done |= ev["terminated"] | ev["truncated"]
-            stack.push(observe(core), np.zeros(len(scenarios), bool))
+            stack.push(observe(core), np.zeros(n, bool))
     q.reset_noise(True)
-    m = core.metrics()
-    return dict(overlap=float(m["overlap"].mean()), completion=float(m["completed"].mean()),
-                heuristic_share=float((used / np.maximum(m["steps"], 1)).mean()))
+    return {**core.metrics(), "truncated": truncated, "heuristic_steps": used}
 
 
 def save_checkpoint(path: str, state: dict) -> None:
@@ -602,8 +605,10 @@ def main(args: Args) -> None:
         if args.eval_every and global_step % args.eval_every < B:
             stage = stages[stage_index]
             pool = [s for s in eval_set if s.obstacles.shape[0] <= stage.size]
-            result = evaluate_policy(q, pool[::max(1, len(pool) // args.eval_maps)][:args.eval_maps],
-                                     args.frame_stack, stage.sensor, stage.sensor_range, args.heuristic_random_ties)
+            m = evaluate_policy(q, pool[::max(1, len(pool) // args.eval_maps)][:args.eval_maps], args.frame_stack,
+                                stage.sensor, stage.sensor_range, random_ties=args.heuristic_random_ties)
+            result = dict(overlap=float(m["overlap"].mean()), completion=float(m["completed"].mean()),
+                          heuristic_share=float((m["heuristic_steps"] / np.maximum(m["steps"], 1)).mean()))
             for k, v in result.items():
                 writer.add_scalar(f"eval/{k}", v, global_step)
             print(f"eval at {global_step:,}: {result}", flush=True)

@@ -67,7 +67,9 @@ def test_marl_dataset_prefix_starts_and_workers(tmp_path):
 
 
 @pytest.mark.parametrize("kw,message", [
-    (dict(policy="rainbow", checkpoint="models/none.pt"), "rainbow_cpp.py"),
+    (dict(policy="rainbow", checkpoint="models/none.pt", maps=("maps/external/empty-8-8.map",)),
+     "no such checkpoint"),
+    (dict(policy="marl"), "rainbow_marl.py"),
     (dict(policy="nope", maps=("x.map",)), "unknown policy"),
     (dict(policy="greedy"), "--maps"),
     (dict(policy="greedy", maps=("missing.map",)), "missing.map"),
@@ -108,3 +110,21 @@ def test_sensor_settings_are_refused_for_planners(tmp_path):
     with pytest.raises(ValueError, match="full information"):
         evaluate.main(evaluate.Args(policy="greedy", dataset=str(ROOT / "maps/cpp_eval.npz"),
                                     limit=1, sensor="camera", out=str(tmp_path)))
+
+
+def test_rainbow_policy_end_to_end(tmp_path):
+    import rainbow_cpp
+    q = rainbow_cpp.QNetwork(3, 41, 16, 0.5)
+    model = tmp_path / "tiny.pt"
+    rainbow_cpp.save_checkpoint(str(model), {"weights": {k: v.half() for k, v in q.state_dict().items()
+                                                         if "sigma" not in k and "eps" not in k},
+                                             "frames": 3, "hidden": 16})
+    kw = dict(policy="rainbow", checkpoint=str(model), dataset=str(ROOT / "maps/cpp_eval.npz"), limit=3)
+    summary, rows = run(tmp_path, **kw)
+    assert len(rows) == 3 and list(rows[0]) == evaluate.COLUMNS
+    assert all(int(r["heuristic_steps"]) > 0 for r in rows)  # an untrained net gets stuck
+    assert all((r["completed"] == "True") != (r["truncated"] == "True") for r in rows)
+    _, rows = run(tmp_path, heuristic=False, **kw)
+    assert all(int(r["heuristic_steps"]) == 0 for r in rows)
+    _, rows = run(tmp_path, sensor="camera", **kw)
+    assert len(rows) == 3
