@@ -123,14 +123,19 @@ def _uncovered(scenario: Scenario, grid: Grid) -> np.ndarray:
     return grid.free & ~covered
 
 
-def _finish_greedy(grid: Grid, path: list[int], todo: np.ndarray) -> None:
-    """Extend `path` to the nearest uncovered cell until none is left (marks `todo`)."""
+def _cover(grid: Grid, path: list[int], todo: np.ndarray, step=lambda pos, todo: None,
+           rank: np.ndarray | None = None) -> list[int]:
+    """Extend `path` until no `todo` cell is left: take `step(pos, todo)` (an uncovered
+    neighbour, or None) and at a dead end walk a shortest path to the nearest todo cell (ties:
+    lowest `rank`, then row-major order)."""
     while todo.any():
-        leg = grid.nearest(path[-1], todo)
+        nxt = step(path[-1], todo)
+        leg = [nxt] if nxt is not None else grid.nearest(path[-1], todo, rank)
         if not leg:
             raise ValueError("some free cells are unreachable from the start")
         path += leg
         todo[leg] = False
+    return path
 
 
 # ----------------------------------------------------------------------------- single agent
@@ -142,23 +147,16 @@ def boustrophedon(scenario: Scenario) -> list[np.ndarray]:
     pos = _start(scenario, grid)
     todo = _uncovered(scenario, grid)
     todo[pos] = False
-    path = [pos]
-    order = (0, 1, 3, 2)  # N, S, E, W
-    while todo.any():
+
+    def sweep(pos, todo):
         y, x = divmod(pos, grid.w)
-        step = None
-        for k in order:
-            ny, nx = y + MOVES[k][0], x + MOVES[k][1]
+        for dy, dx in (MOVES[0], MOVES[1], MOVES[3], MOVES[2]):  # N, S, E, W
+            ny, nx = y + dy, x + dx
             if 0 <= ny < grid.h and 0 <= nx < grid.w and todo[ny * grid.w + nx]:
-                step = ny * grid.w + nx
-                break
-        leg = [step] if step is not None else grid.nearest(pos, todo)
-        if not leg:
-            raise ValueError("some free cells are unreachable from the start")
-        path += leg
-        todo[leg] = False
-        pos = path[-1]
-    return [_cells(grid, path)]
+                return ny * grid.w + nx
+        return None
+
+    return [_cells(grid, _cover(grid, [pos], todo, sweep))]
 
 
 def wavefront(scenario: Scenario) -> list[np.ndarray]:
@@ -172,17 +170,12 @@ def wavefront(scenario: Scenario) -> list[np.ndarray]:
     transform = grid.bfs(goal)
     todo = _uncovered(scenario, grid)
     todo[pos] = False
-    path = [pos]
-    while todo.any():
+
+    def descend(pos, todo):
         options = [v for v in grid.neighbours[pos] if todo[v]]
-        leg = [max(options, key=lambda v: transform[v])] if options else \
-            grid.nearest(pos, todo, rank=-transform)
-        if not leg:
-            raise ValueError("some free cells are unreachable from the start")
-        path += leg
-        todo[leg] = False
-        pos = path[-1]
-    return [_cells(grid, path)]
+        return max(options, key=lambda v: transform[v]) if options else None
+
+    return [_cells(grid, _cover(grid, [pos], todo, descend, rank=-transform))]
 
 
 def spiral_stc(scenario: Scenario) -> list[np.ndarray]:
@@ -270,8 +263,7 @@ def spiral_stc(scenario: Scenario) -> list[np.ndarray]:
                 grid.walk(path[-1], target, grid.bfs(target))
             path += leg
             todo[leg] = False
-    _finish_greedy(grid, path, todo)
-    return [_cells(grid, path)]
+    return [_cells(grid, _cover(grid, path, todo))]
 
 
 def lkh(scenario: Scenario, time_limit: float = LKH_TIME_LIMIT, runs: int = 1) -> list[np.ndarray]:
