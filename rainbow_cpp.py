@@ -1,6 +1,6 @@
 """Modified Rainbow DQN for single-agent robotic navigation (dissertation chapter 6).
 
-    python rainbow_cpp.py                                  # Table 6.2 then Table 6.3 curriculum
+    python rainbow_cpp.py                                  # Tables 6.2 then 6.3 (31 M steps each)
     python rainbow_cpp.py --stage-steps-scale 0.01 --hidden 256 --num-envs 16    # a short run
     python rainbow_cpp.py --resume --run-name NAME         # continue an interrupted run
 
@@ -52,7 +52,7 @@ class Args:
     camera_stages: bool = True
     """with the default curriculum, continue with the camera stages of Table 6.3"""
     stage_steps_scale: float = 1.0
-    """multiply every stage's base_steps (the dissertation's schedule is ~31 M steps)"""
+    """multiply every stage's base_steps (Tables 6.2 and 6.3 are 31 M steps each)"""
     total_steps: int = 0
     """stop after this many environment steps (0: the whole schedule)"""
     num_envs: int = 16
@@ -195,7 +195,9 @@ class SumTree:
         self.tree = np.zeros(2 * self.size)
 
     def update(self, idx: np.ndarray, priority: np.ndarray) -> None:
-        node = np.asarray(idx) + self.size
+        node = np.asarray(idx, np.int64) + self.size
+        if node.size == 0:
+            return
         self.tree[node] = priority
         node = np.unique(node // 2)
         while node[0] >= 1:
@@ -302,10 +304,12 @@ class Replay:
         discount = np.ones(n, np.float32)
         cur = slot.copy()
         alive = np.ones(n, bool)
-        for _ in range(self.n_step):  # n-step return, stopping at the episode's end
+        for i in range(self.n_step):  # n-step return, stopping at the episode's end
             ret += alive * discount * self.reward[cur]
             discount *= np.where(alive, self.gamma, 1.0)
             alive &= ~self.terminal[cur]
+            if i == self.n_step - 1:  # `cur` is the last transition in the return
+                break
             nxt = cur // self.cap * self.cap + (cur % self.cap + 1) % self.cap
             stop = alive & (self.final[nxt] | (self.tree.tree[nxt + self.tree.size] == 0))
             cur = np.where(alive & ~stop, nxt, cur)
@@ -397,7 +401,7 @@ def evaluate_policy(q: QNetwork, scenarios: list, frames: int, sensor: str = "fu
     stack.push(observe(core), np.ones(n, bool))
     done, truncated = np.zeros(n, bool), np.zeros(n, bool)
     since_new, used = np.zeros(n, np.int64), np.zeros(n, np.int64)
-    history = [core.agent_cells()[:, 0]] * 5
+    history = [core.agent_cells()[:, 0]] * 6  # cells at t-5 .. t
     q.reset_noise(False)
     with torch.no_grad():
         while not done.all():
@@ -440,13 +444,16 @@ def load_policy(path: str) -> QNetwork:
         raise ValueError(f"{path}: no such checkpoint")
     try:
         blob = torch.load(path, map_location="cpu", weights_only=False)
+        if not isinstance(blob, dict):
+            raise TypeError(f"a {type(blob).__name__}, not a dict")
         frames = blob.get("frames") or blob["args"]["frame_stack"]
         hidden = blob.get("hidden") or blob["args"]["hidden"]
         weights = blob.get("weights") or blob["model"]
         q = QNetwork(frames, 41, hidden, 0.0)
         missing, unexpected = q.load_state_dict({k: v.float() for k, v in weights.items()}, strict=False)
-    except (KeyError, RuntimeError, TypeError, EOFError) as e:
-        raise ValueError(f"{path}: not a rainbow_cpp model ({str(e).splitlines()[0]})") from None
+    except Exception as e:  # any unreadable file is a one-line error
+        raise ValueError(f"{path}: not a rainbow_cpp model "
+                         f"({(str(e).splitlines() or [type(e).__name__])[0]})") from None
     if unexpected or any("sigma" not in k and "eps" not in k for k in missing):
         raise ValueError(f"{path}: weights do not match this network")
     q.reset_noise(False)
@@ -500,7 +507,7 @@ def main(args: Args) -> None:
     slot = replay.add_frames(every, obs, np.zeros(B, np.int64), np.zeros(B, bool))
     age = np.zeros(B, np.int64)
     since_new = np.zeros(B, np.int64)
-    history = [core.agent_cells()[:, 0]] * 5
+    history = [core.agent_cells()[:, 0]] * 6  # cells at t-5 .. t
     teacher = np.full(B, global_step < args.learning_starts)  # §6.4.2.4 condition 1
     continued = np.zeros(B, bool)  # truncated and continued by the heuristic (condition 2)
     returns = np.zeros(B)
@@ -508,7 +515,7 @@ def main(args: Args) -> None:
     challenging: list = []
     updates_due, last_log, t0 = 0.0, global_step, time.time() - wall
     stop = {"now": False}
-    signal.signal(signal.SIGINT, lambda *_: stop.update(now=True))  # Ctrl-C: save, then exit
+    previous_handler = signal.signal(signal.SIGINT, lambda *_: stop.update(now=True))  # Ctrl-C: save, exit
 
     def save():
         save_checkpoint(checkpoint, {"model": q.state_dict(), "optimizer": optimizer.state_dict(),
@@ -616,6 +623,7 @@ def main(args: Args) -> None:
             save()
     save()
     writer.close()
+    signal.signal(signal.SIGINT, previous_handler)
     print(f"saved {checkpoint} and {args.export} at step {global_step:,}")
 
 

@@ -409,9 +409,6 @@ def check_samples(d, rp, samples, n_step, gamma):
             assert_stack(nm[i], ne[i], expected_stack(d.frames_of(nw, nep), nt, 3))
 
 
-@pytest.mark.xfail(strict=True, reason="BUG: Replay.sample advances `cur` on the last n-step iteration, so "
-                   "next_obs is frame t+n+1 (and the terminal flag of transition t+n is used) whenever "
-                   "frame t+n already has a successor")
 def test_replay_sample_one_step_next_state_is_the_next_frame():
     core = small_core(num_worlds=2, seed=1)
     rp = rc.Replay(2 * 64, 2, V, 3, 1, 0.9, 0.5)
@@ -458,8 +455,6 @@ def sample_slot(rp, slot, n=64):
     return ret[i], (nm[i], ne[i]), boot[i]
 
 
-@pytest.mark.xfail(strict=True, reason="BUG: Replay.sample: after n full steps the next state is "
-                   "frame t+n+1 and the bootstrap uses terminal[t+n] (cur advanced once too often)")
 def test_replay_n_step_return_full_window():
     core = small_core(num_worlds=1, seed=0)
     g = 0.5
@@ -535,7 +530,6 @@ def test_replay_never_samples_slots_without_successor():
     assert all(leaves[s] == 0 for s in newest)
 
 
-@pytest.mark.xfail(strict=True, reason="BUG: same Replay.sample off-by-one (next_obs two frames ahead)")
 def test_replay_ring_wrap_keeps_samples_consistent():
     core = small_core(num_worlds=2, seed=6, battery_factor=0.4)
     rp = rc.Replay(2 * 16, 2, V, 3, 1, 0.9, 0.5)
@@ -597,8 +591,6 @@ def test_replay_bytes_per_transition_is_compact():
     assert per == actual / size + rp.tree.tree.nbytes / size  # the reported figure is what is stored
 
 
-@pytest.mark.xfail(strict=True, reason="BUG: SumTree.update with no indices raises IndexError (node[0] of an "
-                   "empty array), so Replay.add_frames crashes for frame_stack=1 (empty `ahead`)")
 def test_replay_single_frame_stack():
     core = small_core(num_worlds=2, seed=0)
     rp = rc.Replay(2 * 64, 2, V, 1, 1, 0.9, 0.5)
@@ -661,6 +653,42 @@ def test_main_smoke_resume_export_and_load(tmp_path, monkeypatch, restore_sigint
     with torch.no_grad():
         assert torch.allclose(q_ck(maps, extras), y1, atol=5e-2, rtol=5e-2)
 
+    # TensorBoard: CleanRL's episode charts and the held-out evaluation were logged
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+    tags = set()
+    for p in (tmp_path / "runs" / "t").glob("events.out.tfevents*"):
+        acc = EventAccumulator(str(p))
+        acc.Reload()
+        tags |= set(acc.Tags()["scalars"])
+    assert {"charts/episodic_return", "charts/episodic_length", "eval/overlap", "eval/completion",
+            "eval/heuristic_share"} <= tags
+
+    # init_from: a new run starts from the exported mean weights (no updates: learning never starts)
+    weights = torch.load(tmp_path / "m.pt", map_location="cpu", weights_only=False)["weights"]
+    rc.main(small_args(tmp_path, run_name="init", init_from=str(tmp_path / "m.pt"), total_steps=40,
+                       learning_starts=10 ** 6, eval_every=0, save_every=0, export=str(tmp_path / "init.pt")))
+    model = torch.load(tmp_path / "runs" / "init" / "checkpoint.pt", map_location="cpu", weights_only=False)["model"]
+    for k, v in weights.items():
+        assert torch.equal(model[k], v.float()), k
+    assert torch.allclose(model["value.0.weight_sigma"], torch.full_like(model["value.0.weight_sigma"],
+                                                                         0.5 / np.sqrt(5224)))
+
+
+def test_main_curriculum_moves_to_the_next_stage(tmp_path, monkeypatch, restore_sigint):
+    """stage_steps_scale 0.001: stage fi1 ends at 1000 steps; the run goes on in fi2 (10x10)."""
+    monkeypatch.chdir(tmp_path)
+    rc.main(small_args(tmp_path, run_name="c", total_steps=1040, learning_starts=10 ** 6, eval_every=0,
+                       save_every=0))
+    state = torch.load(tmp_path / "runs" / "c" / "checkpoint.pt", map_location="cpu", weights_only=False)
+    assert state["global_step"] == 1040 and state["stage"] == 1
+    assert json.loads((tmp_path / "m.json").read_text())["stage"] == "fi2"
+
+
+def test_main_rejects_a_buffer_too_small(tmp_path, monkeypatch, restore_sigint):
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(ValueError, match="buffer_size"):
+        rc.main(small_args(tmp_path, buffer_size=64 * 4 - 1))
+
 
 def test_resume_without_checkpoint_is_a_value_error(tmp_path, monkeypatch, restore_sigint):
     monkeypatch.chdir(tmp_path)
@@ -691,9 +719,6 @@ def test_load_policy_rejects_non_models(tmp_path, kind):
     assert "\n" not in str(e.value) and str(path) in str(e.value)
 
 
-@pytest.mark.xfail(strict=True, reason="BUG: load_policy catches only KeyError/RuntimeError/TypeError/EOFError: "
-                   "a text file raises pickle.UnpicklingError, a saved tensor or list AttributeError "
-                   "(blob.get), a directory IsADirectoryError")
 @pytest.mark.parametrize("kind", ["text", "tensor", "directory"])
 def test_load_policy_rejects_other_files(tmp_path, kind):
     path = tmp_path / "x.pt"
@@ -725,6 +750,22 @@ def test_default_curriculum():
     assert all(s.sensor == "full" and s.random_coverage for s in stages[:6])
     assert all(s.sensor == "camera" and not s.random_coverage for s in stages[6:])
     assert len(rc.load_stages(rc.Args(camera_stages=False))) == 6
+
+
+def test_evaluate_policy_per_episode():
+    scen = [s for s in gw.load_dataset(os.path.join(os.path.dirname(rc.__file__), "maps", "cpp_eval.npz"))
+            if s.obstacles.shape[0] <= 6][:3]
+    torch.manual_seed(0)
+    q = rc.QNetwork(3, V, 16, 0.5)
+    m1 = rc.evaluate_policy(q, scen, 3, "full", 3)
+    m2 = rc.evaluate_policy(q, scen, 3, "full", 3)
+    for k in ("overlap", "completed", "steps", "truncated", "heuristic_steps"):
+        assert len(m1[k]) == 3, k
+        np.testing.assert_array_equal(m1[k], m2[k])  # noise off, fixed maps and starts: deterministic
+    assert (m1["completed"] ^ m1["truncated"]).all()  # every episode ran to its end, one way
+    assert ((0 <= m1["heuristic_steps"]) & (m1["heuristic_steps"] <= m1["steps"])).all()
+    alone = rc.evaluate_policy(q, scen, 3, "full", 3, heuristic=False)
+    assert not alone["heuristic_steps"].any()
 
 
 # ============================================================================ 6. stuck()
