@@ -612,7 +612,7 @@ def main(args: Args) -> None:
             last_log = global_step
         if args.eval_every and global_step % args.eval_every < B:
             stage = stages[stage_index]
-            pool = [s for s in eval_set if s.obstacles.shape[0] <= stage.size]
+            pool = [s for s in eval_set if s.obstacles.shape[0] <= max(stage.size, 5)]  # cpp_eval starts at 5
             m = evaluate_policy(q, pool[::max(1, len(pool) // args.eval_maps)][:args.eval_maps], args.frame_stack,
                                 stage.sensor, stage.sensor_range, random_ties=args.heuristic_random_ties)
             result = dict(overlap=float(m["overlap"].mean()), completion=float(m["completed"].mean()),

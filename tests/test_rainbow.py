@@ -777,3 +777,13 @@ def test_stuck_conditions_by_hand():
     #   4 steps -> too early; 3 moved -> no; 6 steps, 1 moved -> yes; fresh -> no; 30 == M -> no
     want = [False, True, True, True, False, False, True, False, False]
     assert rc.stuck(since_new, moved, size).tolist() == want
+
+
+def test_stage_smaller_than_the_eval_maps_still_evaluates(tmp_path, monkeypatch, restore_sigint):
+    monkeypatch.chdir(tmp_path)
+    cfg = tmp_path / "stages.yaml"
+    cfg.write_text("tiny:\n  size: 4\n  min_size: 3\n  random_size: true\n  base_steps: 400\n")
+    rc.main(small_args(tmp_path, stages=str(cfg), stage_steps_scale=1.0, total_steps=400,
+                       eval_every=200, eval_maps=2))  # evaluates on the smallest cpp_eval maps (5x5)
+    state = torch.load(tmp_path / "runs" / "t" / "checkpoint.pt", weights_only=False)
+    assert state["global_step"] >= 400
