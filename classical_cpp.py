@@ -475,16 +475,20 @@ def load_scenarios(args: Args) -> list[Scenario]:
         scenarios = scenarios[:args.limit]
     rng = np.random.default_rng(args.seed)
     for s in scenarios:
-        if s.starts is not None and len(s.starts) >= args.agents:
-            s.starts = s.starts[:args.agents]
-        else:
-            free = np.argwhere(~s.obstacles)
-            if len(free) <= args.agents:
-                raise ValueError(f"a map has {len(free)} free cells for {args.agents} agents")
-            s.starts = free[rng.choice(len(free), args.agents, replace=False)]
+        s.starts = starts_for(s, args.agents, rng, "a map")
         s.covered = None if s.covered is None else s.covered & ~s.obstacles
         with_starts(s)
     return scenarios
+
+
+def starts_for(s: Scenario, agents: int, rng: np.random.Generator, name: str) -> np.ndarray:
+    """The first `agents` stored starts, else that many distinct random free cells."""
+    if s.starts is not None and len(s.starts) >= agents:
+        return s.starts[:agents]
+    free = np.argwhere(~s.obstacles)
+    if len(free) <= agents:
+        raise ValueError(f"{name}: {len(free)} free cells for {agents} agents")
+    return free[rng.choice(len(free), agents, replace=False)]
 
 
 def with_starts(s: Scenario) -> Scenario:

@@ -101,13 +101,8 @@ def scenarios_from(args: Args) -> list[tuple[str, Scenario]]:
                       else [cells[:args.agents]])
             if len(groups[0]) < args.agents:
                 raise ValueError(f"{args.starts}: {name} has {len(cells)} starts for {args.agents} agents")
-        elif s.starts is not None and len(s.starts) >= args.agents:
-            groups = [s.starts[:args.agents]]
         else:
-            free = np.argwhere(~s.obstacles)
-            if len(free) <= args.agents:
-                raise ValueError(f"{name}: {len(free)} free cells for {args.agents} agents")
-            groups = [free[rng.choice(len(free), args.agents, replace=False)]]
+            groups = [classical_cpp.starts_for(s, args.agents, rng, name)]
         for starts in groups:
             scenario = classical_cpp.with_starts(Scenario(s.obstacles, starts, s.covered))
             gridworld.check_scenario(scenario, name)
