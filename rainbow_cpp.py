@@ -102,6 +102,12 @@ class Args:
     """chance an episode starts with up to `uncommon_max` of its cells covered (§6.4.2.5)"""
     uncommon_max: float = 2 / 3
     """largest pre-covered fraction of an uncommon-pattern episode"""
+    margin_loss: float = 0.0
+    """weight of a DQfD large-margin loss (Hester et al. 2018) pulling Q toward the heuristic's
+    action at every replayed state: the heuristic labels each state the agent visits, so the
+    imitation is on-policy (DAgger-like); 0 keeps the dissertation's recipe"""
+    margin: float = 0.8
+    """the margin l(a_E, a) by which the heuristic's action must beat every other action"""
     heuristic_random_ties: bool = False
     """the heuristic breaks ties at random (§6.3.1) instead of by the first cell; the random walk
     overlaps ~4x more (README), so it makes a poorer teacher"""
@@ -237,6 +243,7 @@ class Replay:
         self.last = np.zeros(size, np.int8)
         self.battery = np.zeros(size, np.float16)
         self.action = np.zeros(size, np.int8)
+        self.label = np.full(size, -1, np.int8)  # the heuristic's action here (-1: none)
         self.reward = np.zeros(size, np.float32)
         self.terminal = np.zeros(size, bool)  # the transition from this slot terminates
         self.final = np.zeros(size, bool)  # the frame ends its episode (no action taken here)
@@ -248,7 +255,7 @@ class Replay:
 
     def bytes_per_transition(self) -> int:
         return sum(a.itemsize * int(np.prod(a.shape[1:])) for a in
-                   (self.bits, self.edges, self.oob, self.last, self.battery, self.action,
+                   (self.bits, self.edges, self.oob, self.last, self.battery, self.action, self.label,
                     self.reward, self.terminal, self.final, self.age)) + 16  # + sum-tree leaf
 
     def add_frames(self, worlds: np.ndarray, obs: dict, age: np.ndarray, final: np.ndarray) -> np.ndarray:
@@ -276,8 +283,10 @@ class Replay:
         self.filled[worlds] = np.minimum(self.filled[worlds] + 1, self.cap)
         return slot
 
-    def set_transition(self, slot: np.ndarray, action: np.ndarray, reward: np.ndarray, terminal: np.ndarray):
+    def set_transition(self, slot: np.ndarray, action: np.ndarray, reward: np.ndarray, terminal: np.ndarray,
+                       label: np.ndarray | None = None):
         self.action[slot], self.reward[slot], self.terminal[slot] = action, reward, terminal
+        self.label[slot] = -1 if label is None else np.where(label < 4, label, -1)  # WAIT is no move to learn
 
     def _frames(self, slot: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Stacked maps (n, 4k, V, V) uint8 and extras (n, 1 + 13k) for frames ending at slot."""
@@ -405,7 +414,10 @@ def evaluate_policy(q: QNetwork, scenarios: list, frames: int, sensor: str = "fu
     q.reset_noise(False)
     with torch.no_grad():
         while not done.all():
-            action = q(*to_torch(*stack.get())).argmax(1).numpy()
+            active = np.flatnonzero(~done)  # finished worlds cost no forward pass
+            maps, extras = stack.get()
+            action = np.full(n, gridworld.WAIT)
+            action[active] = q(*to_torch(maps[active], extras[active])).argmax(1).numpy()
             if heuristic:
                 moved = np.abs(core.agent_cells()[:, 0] - history[0]).sum(1)
                 fallback = stuck(since_new, moved, core.hw.max(1)) & ~done
@@ -534,11 +546,13 @@ def main(args: Args) -> None:
             action = q(*to_torch(*stack.get())).argmax(1).numpy()
         moved = np.abs(core.agent_cells()[:, 0] - history[0]).sum(1)
         teach = (teacher | continued | stuck(since_new, moved, core.hw.max(1))) & (rng.random(B) < args.imitation)
+        label = core.heuristic_actions(args.heuristic_random_ties)[:, 0] if teach.any() or args.margin_loss else None
         if teach.any():
-            action = np.where(teach, core.heuristic_actions(args.heuristic_random_ties)[:, 0], action)
+            action = np.where(teach, label, action)
         ev = core.step(action[:, None])
         terminated, truncated = ev["terminated"], ev["truncated"]
-        replay.set_transition(slot, action, ev["reward"][:, 0], terminated | (truncated & ~args.peb))
+        replay.set_transition(slot, action, ev["reward"][:, 0], terminated | (truncated & ~args.peb),
+                              label if args.margin_loss else None)
         returns += ev["reward"][:, 0]
         since_new = np.where(ev["new"][:, 0], 0, since_new + 1)
         history = history[1:] + [core.agent_cells()[:, 0]]
@@ -590,8 +604,16 @@ def main(args: Args) -> None:
             with torch.no_grad():  # double DQN: the online net picks, the target net values
                 best = q(nm, ne).argmax(1, keepdim=True)
                 y = torch.from_numpy(ret) + torch.from_numpy(boot) * target(nm, ne).gather(1, best)[:, 0]
-            q_sa = q(m_, e_).gather(1, torch.from_numpy(a_)[:, None])[:, 0]
+            q_all = q(m_, e_)
+            q_sa = q_all.gather(1, torch.from_numpy(a_)[:, None])[:, 0]
             loss = (torch.from_numpy(weight.astype(np.float32)) * F.smooth_l1_loss(q_sa, y, reduction="none")).mean()
+            if args.margin_loss:  # J_E = max_a [Q(s, a) + l(a_E, a)] - Q(s, a_E)
+                label = torch.from_numpy(replay.label[idx].astype(np.int64))
+                has = label >= 0
+                a_e = label.clamp(min=0)[:, None]
+                beaten = (q_all + args.margin * (1 - F.one_hot(a_e[:, 0], 4))).max(1).values
+                margin_loss = ((beaten - q_all.gather(1, a_e)[:, 0]) * has).sum() / has.sum().clamp(min=1)
+                loss = loss + args.margin_loss * margin_loss
             optimizer.zero_grad()
             loss.backward()
             nn.utils.clip_grad_norm_(q.parameters(), args.max_grad_norm)
@@ -605,6 +627,8 @@ def main(args: Args) -> None:
             if global_step - last_log >= 1000:
                 writer.add_scalar("losses/td_loss", loss.item(), global_step)
                 writer.add_scalar("losses/q_values", q_sa.mean().item(), global_step)
+                if args.margin_loss:
+                    writer.add_scalar("losses/margin_loss", margin_loss.item(), global_step)
         if global_step - last_log >= 1000:
             sps = int(global_step / max(time.time() - t0, 1e-9))
             writer.add_scalar("charts/SPS", sps, global_step)
