@@ -395,6 +395,15 @@ def stuck(since_new: np.ndarray, moved: np.ndarray, size: np.ndarray) -> np.ndar
     return (since_new > size) | ((since_new >= 5) & (moved <= 2))
 
 
+def large_margin_loss(q_all: torch.Tensor, label: torch.Tensor, margin: float) -> torch.Tensor:
+    """DQfD's J_E = max_a [Q(s, a) + l(a_E, a)] - Q(s, a_E), l = margin except at a_E, averaged
+    over the states with a label (label -1: none)."""
+    has = label >= 0
+    a_e = label.clamp(min=0)
+    beaten = (q_all + margin * (1 - F.one_hot(a_e, q_all.shape[1]))).max(1).values
+    return ((beaten - q_all.gather(1, a_e[:, None])[:, 0]) * has).sum() / has.sum().clamp(min=1)
+
+
 def evaluate_policy(q: QNetwork, scenarios: list, frames: int, sensor: str = "full", sensor_range: int = 3,
                     sensor_failure: float = 0.0, heuristic: bool = True, random_ties: bool = False) -> dict:
     """Run the deterministic policy (noise off) once on each scenario, all at once; with
@@ -607,12 +616,9 @@ def main(args: Args) -> None:
             q_all = q(m_, e_)
             q_sa = q_all.gather(1, torch.from_numpy(a_)[:, None])[:, 0]
             loss = (torch.from_numpy(weight.astype(np.float32)) * F.smooth_l1_loss(q_sa, y, reduction="none")).mean()
-            if args.margin_loss:  # J_E = max_a [Q(s, a) + l(a_E, a)] - Q(s, a_E)
-                label = torch.from_numpy(replay.label[idx].astype(np.int64))
-                has = label >= 0
-                a_e = label.clamp(min=0)[:, None]
-                beaten = (q_all + args.margin * (1 - F.one_hot(a_e[:, 0], 4))).max(1).values
-                margin_loss = ((beaten - q_all.gather(1, a_e)[:, 0]) * has).sum() / has.sum().clamp(min=1)
+            if args.margin_loss:
+                margin_loss = large_margin_loss(q_all, torch.from_numpy(replay.label[idx].astype(np.int64)),
+                                                args.margin)
                 loss = loss + args.margin_loss * margin_loss
             optimizer.zero_grad()
             loss.backward()

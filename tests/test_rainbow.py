@@ -787,3 +787,50 @@ def test_stage_smaller_than_the_eval_maps_still_evaluates(tmp_path, monkeypatch,
                        eval_every=200, eval_maps=2))  # evaluates on the smallest cpp_eval maps (5x5)
     state = torch.load(tmp_path / "runs" / "t" / "checkpoint.pt", weights_only=False)
     assert state["global_step"] >= 400
+
+
+# ============================================================================ 6. DQfD margin loss
+def test_large_margin_loss_by_hand():
+    q_all = torch.tensor([[1.0, 2.0, 0.0, 0.0], [0.0, 0.0, 0.0, 3.0]])
+    # row 0: max(1, 2 + .8, .8, .8) - Q(a_E = 0) = 2.8 - 1 = 1.8; row 1: max(.8, .8, .8, 3) - 3 = 0
+    assert rc.large_margin_loss(q_all, torch.tensor([0, 3]), 0.8).item() == pytest.approx(0.9)
+    assert rc.large_margin_loss(q_all, torch.tensor([0, -1]), 0.8).item() == pytest.approx(1.8)  # unlabelled
+    assert rc.large_margin_loss(q_all, torch.tensor([-1, -1]), 0.8).item() == 0.0
+
+
+def test_replay_labels_skip_wait():
+    rp = rc.Replay(64, 2, 9, 3, 1, 0.99, 0.5)
+    slot = np.array([0, 32])
+    rp.set_transition(slot, np.array([1, 2]), np.zeros(2), np.zeros(2, bool), np.array([3, gw.WAIT]))
+    assert rp.label[0] == 3 and rp.label[32] == -1
+    rp.set_transition(slot, np.array([1, 2]), np.zeros(2), np.zeros(2, bool))  # no labels: none kept
+    assert (rp.label[slot] == -1).all()
+
+
+def test_margin_loss_teaches_the_heuristic_actions():
+    """A small network trained on the margin loss alone picks the heuristic's move in every state."""
+    torch.manual_seed(0)
+    core = gw.GridWorldCore(gw.EnvConfig(size=5, number_obstacles=3), 8, seed=3)
+    core.reset()
+    stack = rc.Stacker(8, 3, core.V)
+    stack.push(rc.observe(core), np.ones(8, bool))
+    label = torch.from_numpy(core.heuristic_actions(False)[:, 0].astype(np.int64))
+    q = rc.QNetwork(3, V, 16, 0.0)
+    optimizer = torch.optim.Adam(q.parameters(), lr=1e-3)
+    maps, extras = rc.to_torch(*stack.get())
+    for _ in range(300):
+        loss = rc.large_margin_loss(q(maps, extras), label, 0.8)
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+    assert loss.item() < 1e-3
+    assert torch.equal(q(maps, extras).argmax(1), label)
+
+
+def test_main_with_margin_loss_logs_it(tmp_path, monkeypatch, restore_sigint):
+    monkeypatch.chdir(tmp_path)
+    rc.main(small_args(tmp_path, run_name="m", total_steps=1200, eval_every=0, save_every=0, margin_loss=1.0))
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+    acc = EventAccumulator(str(next((tmp_path / "runs" / "m").glob("events.out.tfevents*"))))
+    acc.Reload()
+    assert "losses/margin_loss" in acc.Tags()["scalars"]
