@@ -217,11 +217,109 @@ class ReportArgs:
     reuse: bool = False
     """re-draw from results/classical_cpp.json instead of re-running the planners (~25 min)"""
     per_size: int = 20
-    """maps per cpp_eval size for the planner comparison (LKH takes seconds per map)"""
+    """maps per cpp_eval size for the planner comparison (LKH takes seconds per map) and the
+    learned agents"""
+    p2p_maps: int = 1000
+    """p2p_eval scenarios for the point-to-point evaluation (of 10,000)"""
+
+
+def rainbow_results(out: str, per_size: int, p2p_maps: int, model: str) -> dict:
+    """A rainbow_cpp model (the committed one in the report) on cpp_eval (full information with and without the
+    heuristic fallback, camera r = 3), p2p_eval and the MovingAI maps; the greedy planner per
+    size beside it. Written to results/rainbow_cpp.json."""
+    root = os.path.dirname(os.path.abspath(__file__))
+    cpp = os.path.join(root, "maps", "cpp_eval.npz")
+    keep = np.concatenate([np.flatnonzero(np.load(cpp)["size"] == z)[:per_size] for z in range(5, 31)])
+    chosen = set(keep.tolist())
+    episodes = [e for i, e in enumerate(scenarios_from(Args(dataset=cpp))) if i in chosen]
+
+    def by_size(rows):
+        out = {}
+        for r in rows:
+            out.setdefault(r["size"].split("x")[0], []).append(r)
+        return {z: dict(overlap=round(float(np.mean([r["overlap"] for r in g])), 4),
+                        completion=round(float(np.mean([r["completed"] for r in g])), 4),
+                        heuristic_share=round(float(np.mean([r["heuristic_steps"] / max(r["steps"], 1)
+                                                             for r in g])), 4))
+                for z, g in out.items()}
+
+    result = {"per_size": per_size, "model": json.load(open(os.path.splitext(model)[0] + ".json"))}
+    for key, kw in (("full", {}), ("full_no_heuristic", {"heuristic": False}),
+                    ("camera_r3", {"sensor": "camera", "sensor_range": 3})):
+        rows = run_rainbow(Args(policy="rainbow", checkpoint=model, **kw), episodes)
+        result[key] = by_size(rows)
+        print(key, json.dumps(result[key]), flush=True)
+    result["greedy"] = by_size(run_planner("greedy", episodes))
+    p2p = scenarios_from(Args(dataset=os.path.join(root, "maps", "p2p_eval.npz"), limit=p2p_maps))
+    shortest = [r["steps"] for r in run_planner("greedy", p2p)]  # one target: greedy walks a shortest path
+    rows = run_rainbow(Args(policy="rainbow", checkpoint=model), p2p)
+    result["p2p"] = {"maps": len(p2p), "optimal": round(float(np.mean([r["steps"] == b for r, b in
+                                                                        zip(rows, shortest)])), 4),
+                     "completion": round(float(np.mean([r["completed"] for r in rows])), 4),
+                     "mean_extra_steps": round(float(np.mean([r["steps"] - b for r, b in zip(rows, shortest)])), 3)}
+    refs = json.load(open(os.path.join(root, "maps", "external", "references.json")))
+    ext_dir = os.path.join(root, "maps", "external")
+    external = [(name, classical_cpp.with_starts(Scenario(gridworld.load_map(os.path.join(ext_dir, name)).obstacles,
+                                                          np.array([r["start"]]))))
+                for name, rs in refs.items() for r in rs]
+    result["external"] = {}
+    for row in run_rainbow(Args(policy="rainbow", checkpoint=model), external):
+        result["external"].setdefault(row["map"], []).append(row["overlap"])
+    with open(os.path.join(out, "rainbow_cpp.json"), "w") as f:
+        json.dump(result, f, indent=1)
+    return result
 
 
 NOT_TRAINED = ("*Not trained yet:* `{script}` is an open issue; this section fills in when "
                "its model is committed.")
+
+
+def rainbow_sections(rb: dict, cpp: dict, ext: dict, out: str, table) -> tuple[list, list, list]:
+    """RESULTS.md lines for the chapter-6 agent, and its overlap-by-size figure."""
+    import matplotlib.pyplot as plt
+    sizes = sorted(rb["full"], key=int)
+    fig, ax = plt.subplots(figsize=(7, 4))
+    for key, label in (("full", "rainbow + heuristic fallback"), ("full_no_heuristic", "rainbow alone"),
+                       ("camera_r3", "rainbow, camera r = 3"), ("greedy", "greedy planner")):
+        ax.plot([int(z) for z in sizes], [rb[key][z]["overlap"] for z in sizes], marker=".", label=label)
+    bands = [b for b in cpp["lkh"] if "-" in b]
+    ax.plot([np.mean([int(x) for x in b.split("-")]) for b in bands], [cpp["lkh"][b] for b in bands], "k*",
+            label="LKH (size-band means)")
+    ax.axhline(0.05, color="grey", ls=":", label="target 0.05")
+    ax.set(xlabel="map size (edge, cells)", ylabel="mean overlap $O_v$", yscale="log",
+           title=f"rainbow_cpp on cpp_eval ({rb['per_size']} maps per size)")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(os.path.join(out, "rainbow_overlap_by_size.png"), dpi=120)
+    plt.close(fig)
+    m = rb["model"]
+    trained = (f"Model `models/rainbow_cpp.pt` (hidden {m['args']['hidden']}): {m['global_step']:,} environment "
+               f"steps, last stage {m['stage']}, {m['wall_seconds'] / 3600:.1f} h on a {m['machine']}; "
+               "flags in `models/rainbow_cpp.json`. Regenerate these numbers with `python evaluate.py report`.")
+    full = [trained, "", f"`cpp_eval`, the first {rb['per_size']} maps of each size, mean overlap and completion; "
+            "heuristic share = fraction of steps the fallback took.", "",
+            table(["size", "rainbow + heuristic", "completed", "heuristic share", "rainbow alone", "completed",
+                   "greedy planner"],
+                  [[z, f"{rb['full'][z]['overlap']:.3f}", f"{100 * rb['full'][z]['completion']:.0f}%",
+                    f"{rb['full'][z]['heuristic_share']:.2f}", f"{rb['full_no_heuristic'][z]['overlap']:.3f}",
+                    f"{100 * rb['full_no_heuristic'][z]['completion']:.0f}%", f"{rb['greedy'][z]['overlap']:.3f}"]
+                   for z in sizes]), "",
+            "![rainbow overlap by size](rainbow_overlap_by_size.png)", "",
+            "MovingAI maps, mean overlap over the 3 reference starts:", "",
+            table(["map", "rainbow + heuristic", "greedy", "lkh"],
+                  [[name, f"{np.mean(v):.3f}", f"{np.mean(ext[name]['greedy']):.3f}", f"{np.mean(ext[name]['lkh']):.3f}"]
+                   for name, v in rb["external"].items()])]
+    sensor = ["Camera, range r = 3 (the full-information model; no camera stages trained), with the "
+              "heuristic fallback, `cpp_eval` as above:", "",
+              table(["size", "overlap", "completed"],
+                    [[z, f"{rb['camera_r3'][z]['overlap']:.3f}", f"{100 * rb['camera_r3'][z]['completion']:.0f}%"]
+                     for z in sizes])]
+    p = rb["p2p"]
+    p2p = [f"The first {p['maps']:,} scenarios of `p2p_eval` (one point of interest), heuristic fallback on: "
+           f"{100 * p['optimal']:.1f}% on a shortest path, {100 * p['completion']:.1f}% reached, "
+           f"{p['mean_extra_steps']:.2f} steps beyond the shortest path on average."]
+    return full, sensor, p2p
 
 
 def report(args: ReportArgs) -> None:
@@ -282,13 +380,22 @@ def report(args: ReportArgs) -> None:
         return "\n".join(["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
                          + ["| " + " | ".join(r) + " |" for r in rows])
 
+    rainbow_path = os.path.join(args.out, "rainbow_cpp.json")
+    model = os.path.join(os.path.dirname(os.path.abspath(__file__)), DEFAULT_CHECKPOINT["rainbow"])
+    if os.path.exists(model) and (not args.reuse or not os.path.exists(rainbow_path)):
+        rainbow_results(args.out, args.per_size, args.p2p_maps, model)
+    full_info = sensor_based = point_to_point = [NOT_TRAINED.format(script="rainbow_cpp.py")]
+    if os.path.exists(rainbow_path):
+        with open(rainbow_path) as f:
+            rb = json.load(f)
+        full_info, sensor_based, point_to_point = rainbow_sections(rb, cpp, ext, args.out, table)
+
     lines = [
         "# Results", "",
         "Regenerated by `python evaluate.py report` (add `--reuse` to re-draw from "
         "`results/classical_cpp.json` without re-running the planners). Every number is counted "
         "by gridworld's environment replaying the planned paths (`classical_cpp.replay`).", "",
-        "## Single agent, full information (Figs. 6.13-6.16)", "",
-        NOT_TRAINED.format(script="rainbow_cpp.py"), "",
+        "## Single agent, full information (Figs. 6.13-6.16)", "", *full_info, "",
         "## Comparison with classical planners (Table 6.4)", "",
         f"`cpp_eval`, the first {data['per_size']} maps of each size, mean overlap by size band; "
         f"LKH ({data['lkh_time_limit_s']:.0f} s cap per map) is the near-optimal reference.", "",
@@ -301,8 +408,8 @@ def report(args: ReportArgs) -> None:
         table(["map"] + planners,
               [[m] + [f"{np.mean(ext[m][n]):.3f}" for n in planners] for m in maps]), "",
         "![planners on external maps](planners_external.png)", "",
-        "## Sensor-based coverage (Figs. 6.17-6.22)", "", NOT_TRAINED.format(script="rainbow_cpp.py"), "",
-        "## Point-to-point (Fig. 6.23)", "", NOT_TRAINED.format(script="rainbow_cpp.py"), "",
+        "## Sensor-based coverage (Figs. 6.17-6.22)", "", *sensor_based, "",
+        "## Point-to-point (Fig. 6.23)", "", *point_to_point, "",
         "## Multi-agent (Figs. 7.11-7.12)", "",
         "Baselines on `marl_eval` sizes 10-30 (every 5th layout), mean time-save factor "
         "$t_{sf} = T / n_{poi}(s_0)$:", "",

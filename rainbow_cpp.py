@@ -407,7 +407,9 @@ def large_margin_loss(q_all: torch.Tensor, label: torch.Tensor, margin: float) -
 def evaluate_policy(q: QNetwork, scenarios: list, frames: int, sensor: str = "full", sensor_range: int = 3,
                     sensor_failure: float = 0.0, heuristic: bool = True, random_ties: bool = False) -> dict:
     """Run the deterministic policy (noise off) once on each scenario, all at once; with
-    `heuristic` the navigation heuristic takes over while the agent is stuck (§6.5.2.1).
+    `heuristic` the navigation heuristic takes over when the agent is stuck (§6.5.2.1, the
+    conditions of §6.4.2.4) and keeps control for as many new cells as the agent has been stuck
+    in this episode, so a policy that keeps falling into loops still finishes the map.
     Returns per-episode arrays: gridworld's metrics, `truncated` and `heuristic_steps`."""
     core = gridworld.GridWorldCore(gridworld.EnvConfig(load_state=True, load_random=False, sensor=sensor,
                                                        sensor_range=sensor_range, sensor_failure=sensor_failure),
@@ -419,6 +421,7 @@ def evaluate_policy(q: QNetwork, scenarios: list, frames: int, sensor: str = "fu
     stack.push(observe(core), np.ones(n, bool))
     done, truncated = np.zeros(n, bool), np.zeros(n, bool)
     since_new, used = np.zeros(n, np.int64), np.zeros(n, np.int64)
+    times_stuck, owed = np.zeros(n, np.int64), np.zeros(n, np.int64)  # owed: new cells left to the heuristic
     history = [core.agent_cells()[:, 0]] * 6  # cells at t-5 .. t
     q.reset_noise(False)
     with torch.no_grad():
@@ -429,12 +432,16 @@ def evaluate_policy(q: QNetwork, scenarios: list, frames: int, sensor: str = "fu
             action[active] = q(*to_torch(maps[active], extras[active])).argmax(1).numpy()
             if heuristic:
                 moved = np.abs(core.agent_cells()[:, 0] - history[0]).sum(1)
-                fallback = stuck(since_new, moved, core.hw.max(1)) & ~done
+                now_stuck = stuck(since_new, moved, core.hw.max(1)) & ~done & (owed == 0)
+                times_stuck += now_stuck
+                owed = np.where(now_stuck, times_stuck, owed)
+                fallback = (owed > 0) & ~done
                 if fallback.any():
                     action = np.where(fallback, core.heuristic_actions(random_ties)[:, 0], action)
                 used += fallback
             ev = core.step(np.where(done, gridworld.WAIT, action)[:, None])
             since_new = np.where(ev["new"][:, 0], 0, since_new + 1)
+            owed = np.maximum(owed - ev["new"][:, 0], 0)
             history = history[1:] + [core.agent_cells()[:, 0]]
             truncated |= ev["truncated"] & ~done
             done |= ev["terminated"] | ev["truncated"]
