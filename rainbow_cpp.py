@@ -71,6 +71,10 @@ class Args:
     """transitions per gradient step"""
     learning_starts: int = 5000
     """environment steps before learning (filled by the heuristic, §6.4.2.4 condition 1)"""
+    demonstration_steps: int = 0
+    """environment steps acted by the heuristic alone (§6.4.2.4 condition 1, extended past
+    learning_starts): updates before then learn from its demonstrations, as DQfD's
+    pre-training; 0: until learning_starts"""
     replay_ratio: float = 8.0
     """sampled transitions per environment step: Table 6.1's batch 32 every K = 4 steps is 8; the
     noise is resampled and the target soft-updated at every gradient step"""
@@ -537,7 +541,8 @@ def main(args: Args) -> None:
     age = np.zeros(B, np.int64)
     since_new = np.zeros(B, np.int64)
     history = [core.agent_cells()[:, 0]] * 6  # cells at t-5 .. t
-    teacher = np.full(B, global_step < args.learning_starts)  # §6.4.2.4 condition 1
+    demonstrations_end = max(args.learning_starts, args.demonstration_steps)
+    teacher = np.full(B, global_step < demonstrations_end)  # §6.4.2.4 condition 1
     continued = np.zeros(B, bool)  # truncated and continued by the heuristic (condition 2)
     returns = np.zeros(B)
     starts = core.snapshot()
@@ -605,7 +610,7 @@ def main(args: Args) -> None:
                                         np.zeros(len(w), bool))
             age[w] = since_new[w] = returns[w] = 0
             continued[w] = False
-            teacher[w] = global_step < args.learning_starts
+            teacher[w] = global_step < demonstrations_end
             for h in history:
                 h[w] = core.agent_cells()[w, 0]
         stack.push(obs, ended)

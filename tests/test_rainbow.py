@@ -852,3 +852,17 @@ def test_heuristic_fallback_finishes_maps_for_a_looping_policy():
     assert helped["completed"].all() and not helped["truncated"].any()
     assert (helped["heuristic_steps"] > 0).all()
     assert (helped["heuristic_steps"] < helped["steps"]).all()  # the agent still acts in between
+
+
+def test_demonstration_steps_let_the_heuristic_act(tmp_path, monkeypatch, restore_sigint):
+    """With demonstration_steps beyond the run, the heuristic acts every episode (none is
+    solved by the agent alone), although learning has started."""
+    monkeypatch.chdir(tmp_path)
+    rc.main(small_args(tmp_path, run_name="d", total_steps=1200, learning_starts=200, eval_every=0,
+                       save_every=0, demonstration_steps=10 ** 6, margin_loss=1.0, partial_reset=False))
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+    acc = EventAccumulator(str(next((tmp_path / "runs" / "d").glob("events.out.tfevents*"))))
+    acc.Reload()
+    alone = [e.value for e in acc.Scalars("charts/solved_alone")]
+    assert len(alone) > 5 and not any(alone)
+    assert "losses/td_loss" in acc.Tags()["scalars"]  # and it learned meanwhile
