@@ -10,7 +10,9 @@ overlap, time-save factor and steps, completion rate; overall and by map size). 
 counted by gridworld's own environment. Policies: the planners of classical_cpp.py (greedy,
 boustrophedon, spiral-stc, wavefront, lkh, partition) and the chapter-6 agent `rainbow`
 (rainbow_cpp.py; --checkpoint, default models/rainbow_cpp.pt, noise off, heuristic fallback
-unless --no-heuristic); marl and tabular plug in as their scripts land.
+unless --no-heuristic), the chapter-5 agent `tabular` (tabular_q.py; --checkpoint, default
+models/tabular_q.npz, greedy, the heuristic at dead ends unless --no-heuristic, --sensor builds
+the heuristic's map); marl plugs in as its script lands.
 """
 from __future__ import annotations
 
@@ -29,8 +31,8 @@ import classical_cpp
 import gridworld
 from gridworld import Scenario
 
-LEARNED = {"marl": "rainbow_marl.py", "tabular": "tabular_q.py"}  # not in the repository yet
-DEFAULT_CHECKPOINT = {"rainbow": "models/rainbow_cpp.pt"}
+LEARNED = {"marl": "rainbow_marl.py"}  # not in the repository yet
+DEFAULT_CHECKPOINT = {"rainbow": "models/rainbow_cpp.pt", "tabular": "models/tabular_q.npz"}
 COLUMNS = ["map", "size", "n_free", "agents", "start", "steps", "revisits", "overlap", "time_save",
            "completed", "truncated", "heuristic_steps"]
 
@@ -135,6 +137,22 @@ def run_rainbow(args: Args, episodes: list[tuple[str, Scenario]]) -> list[dict]:
     return rows
 
 
+def run_tabular(args: Args, episodes: list[tuple[str, Scenario]]) -> list[dict]:
+    """The chapter-5 agent (tabular_q.py): greedy, never-seen states and dead ends take the
+    heuristic (off with --no-heuristic); --sensor builds the map the heuristic plans on."""
+    import tabular_q
+    if args.agents != 1:
+        raise ValueError("tabular is single-agent; use --agents 1")
+    if args.sensor_failure or args.faulty_agent_at is not None:
+        raise ValueError("tabular: --sensor-failure and --faulty-agent-at are not modelled in chapter 5")
+    path = args.checkpoint or DEFAULT_CHECKPOINT["tabular"]
+    table = tabular_q.QTable.load(path)
+    if table.sensor_range != args.sensor_range:
+        raise ValueError(f"{path}: trained with r = {table.sensor_range}; --sensor-range is {args.sensor_range}")
+    m = tabular_q.evaluate_table(table, [s for _, s in episodes], args.heuristic, args.sensor, args.seed)
+    return [_row(name, s, {k: v[j].item() for k, v in m.items()}) for j, (name, s) in enumerate(episodes)]
+
+
 def _row(name: str, s: Scenario, m: dict) -> dict:
     return dict(map=name, size=f"{s.obstacles.shape[0]}x{s.obstacles.shape[1]}",
                 n_free=int((~s.obstacles).sum()), agents=len(s.starts), start=json.dumps(s.starts.tolist()),
@@ -166,13 +184,15 @@ def main(args: Args) -> dict:
     if args.policy in LEARNED:
         script = LEARNED[args.policy]
         raise ValueError(f"--policy {args.policy} needs {script}, which is not in this repository yet")
-    if args.policy not in classical_cpp.PLANNERS and args.policy != "rainbow":
+    if args.policy not in classical_cpp.PLANNERS and args.policy not in ("rainbow", "tabular"):
         raise ValueError(f"unknown policy {args.policy!r}; choose from "
-                         f"{sorted(classical_cpp.PLANNERS) + ['rainbow'] + sorted(LEARNED)}")
+                         f"{sorted(classical_cpp.PLANNERS) + ['rainbow', 'tabular'] + sorted(LEARNED)}")
     if args.sensor not in gridworld.SENSORS:
         raise ValueError(f"--sensor must be one of {gridworld.SENSORS}, got {args.sensor!r}")
     if args.policy == "rainbow":
         return _write(args, run_rainbow(args, scenarios_from(args)))
+    if args.policy == "tabular":
+        return _write(args, run_tabular(args, scenarios_from(args)))
     if args.sensor != "full" or args.sensor_failure or args.faulty_agent_at is not None:
         raise ValueError("the classical planners plan with full information and no faults; "
                          "--sensor, --sensor-failure and --faulty-agent-at apply to learned policies")
@@ -238,6 +258,8 @@ def rainbow_results(out: str, per_size: int, p2p_maps: int, model: str) -> dict:
         for r in rows:
             out.setdefault(r["size"].split("x")[0], []).append(r)
         return {z: dict(overlap=round(float(np.mean([r["overlap"] for r in g])), 4),
+                        overlap_completed=round(float(np.mean([r["overlap"] for r in g if r["completed"]]
+                                                              or [np.nan])), 4),
                         completion=round(float(np.mean([r["completed"] for r in g])), 4),
                         heuristic_share=round(float(np.mean([r["heuristic_steps"] / max(r["steps"], 1)
                                                              for r in g])), 4))
@@ -279,9 +301,10 @@ def rainbow_sections(rb: dict, cpp: dict, ext: dict, out: str, table) -> tuple[l
     import matplotlib.pyplot as plt
     sizes = sorted(rb["full"], key=int)
     fig, ax = plt.subplots(figsize=(7, 4))
-    for key, label in (("full", "rainbow + heuristic fallback"), ("full_no_heuristic", "rainbow alone"),
-                       ("camera_r3", "rainbow, camera r = 3"), ("greedy", "greedy planner")):
-        ax.plot([int(z) for z in sizes], [rb[key][z]["overlap"] for z in sizes], marker=".", label=label)
+    for key, stat, label in (("full", "overlap", "rainbow + heuristic fallback"),
+                             ("full_no_heuristic", "overlap_completed", "rainbow alone (completed maps)"),
+                             ("camera_r3", "overlap", "rainbow, camera r = 3"), ("greedy", "overlap", "greedy planner")):
+        ax.plot([int(z) for z in sizes], [rb[key][z][stat] for z in sizes], marker=".", label=label)
     bands = [b for b in cpp["lkh"] if "-" in b]
     ax.plot([np.mean([int(x) for x in b.split("-")]) for b in bands], [cpp["lkh"][b] for b in bands], "k*",
             label="LKH (size-band means)")
@@ -297,12 +320,20 @@ def rainbow_sections(rb: dict, cpp: dict, ext: dict, out: str, table) -> tuple[l
     trained = (f"Model `models/rainbow_cpp.pt` (hidden {m['args']['hidden']}): {m['global_step']:,} environment "
                f"steps, last stage {m['stage']}, {m['wall_seconds'] / 3600:.1f} h on a {m['machine']}; "
                "flags in `models/rainbow_cpp.json`. Regenerate these numbers with `python evaluate.py report`.")
-    full = [trained, "", f"`cpp_eval`, the first {rb['per_size']} maps of each size, mean overlap and completion; "
-            "heuristic share = fraction of steps the fallback took.", "",
-            table(["size", "rainbow + heuristic", "completed", "heuristic share", "rainbow alone", "completed",
-                   "greedy planner"],
+    target = [z for z in sizes if 5 <= int(z) <= 20]
+    below = sum(rb["full"][z]["overlap"] < rb["greedy"][z]["overlap"] for z in target)
+    worst = max(target, key=lambda z: rb["full"][z]["overlap"])
+    verdict = (f"Targets on sizes 5-20 (issue #5: 100% completion, mean overlap ≤ 0.05 and below the greedy "
+               f"planner at every size): completion {100 * min(rb['full'][z]['completion'] for z in target):.0f}% "
+               f"at worst; mean overlap ≤ 0.05 at {sum(rb['full'][z]['overlap'] <= 0.05 for z in target)} of "
+               f"{len(target)} sizes (worst {rb['full'][worst]['overlap']:.3f} at {worst}); below greedy at {below} "
+               f"of {len(target)}.")
+    full = [trained, "", verdict, "", f"`cpp_eval`, the first {rb['per_size']} maps of each size, mean overlap and "
+            "completion; heuristic share = fraction of steps the fallback took.", "",
+            table(["size", "rainbow + heuristic", "completed", "heuristic share", "rainbow alone (completed maps)",
+                   "completed", "greedy planner"],
                   [[z, f"{rb['full'][z]['overlap']:.3f}", f"{100 * rb['full'][z]['completion']:.0f}%",
-                    f"{rb['full'][z]['heuristic_share']:.2f}", f"{rb['full_no_heuristic'][z]['overlap']:.3f}",
+                    f"{rb['full'][z]['heuristic_share']:.2f}", f"{rb['full_no_heuristic'][z]['overlap_completed']:.3f}",
                     f"{100 * rb['full_no_heuristic'][z]['completion']:.0f}%", f"{rb['greedy'][z]['overlap']:.3f}"]
                    for z in sizes]), "",
             "![rainbow overlap by size](rainbow_overlap_by_size.png)", "",
@@ -320,6 +351,110 @@ def rainbow_sections(rb: dict, cpp: dict, ext: dict, out: str, table) -> tuple[l
            f"{100 * p['optimal']:.1f}% on a shortest path, {100 * p['completion']:.1f}% reached, "
            f"{p['mean_extra_steps']:.2f} steps beyond the shortest path on average."]
     return full, sensor, p2p
+
+
+TABLE_5_1 = {"q-learning": (491.1, 492.2, 571.5, 698.9), "sarsa": (615.8, 529.7, 688.9, 791.7),
+             "double-q": (477.8, 498.4, 1521.5, 1993.6), "watkins": (985.1, 1448.0, 2285.9, 6934.1)}  # seconds
+
+
+def tabular_results(out: str) -> dict:
+    """Fig. 5.5: the committed tabular_q table (greedy, heuristic on, lidar map) on ch5_eval, mean ρ
+    per (size, requested obstacles); beside it the untrained table (every state never seen: a
+    random move toward an uncovered neighbour, the heuristic at dead ends). Written to
+    results/tabular/fig5_5.json."""
+    import tabular_q
+    root = os.path.dirname(os.path.abspath(__file__))
+    path = os.path.join(root, "maps", "ch5_eval.npz")
+    data, scenarios = np.load(path), gridworld.load_dataset(path)
+    model = os.path.join(root, DEFAULT_CHECKPOINT["tabular"])
+    trained = tabular_q.QTable.load(model)
+    result = {"model": {k: v for k, v in json.load(open(os.path.splitext(model)[0] + ".json")).items()
+                        if k != "curve_rho"}, "settings": []}
+    rho = {name: tabular_q.evaluate_table(t, scenarios, sensor="lidar")["rho"]
+           for name, t in (("trained", trained), ("untrained", tabular_q.QTable(trained.memory, trained.sensor_range)))}
+    for size, obstacles in sorted({(int(a), int(b)) for a, b in zip(data["size"], data["requested_obstacles"])}):
+        pick = (data["size"] == size) & (data["requested_obstacles"] == obstacles)
+        result["settings"].append(dict(size=size, obstacles=obstacles, maps=int(pick.sum()),
+                                       **{name: round(float(r[pick].mean()), 4) for name, r in rho.items()}))
+    os.makedirs(os.path.join(out, "tabular"), exist_ok=True)
+    with open(os.path.join(out, "tabular", "fig5_5.json"), "w") as f:
+        json.dump(result, f, indent=1)
+    return result
+
+
+def tabular_sections(out: str, fig55: dict, table) -> list[str]:
+    """RESULTS.md lines for chapter 5 and its two figures, from results/tabular/ (the training
+    runs of Fig. 5.4 and Table 5.1 in fig5_4/, if there)."""
+    import matplotlib.pyplot as plt
+    runs, folder = {}, os.path.join(out, "tabular", "fig5_4")
+    for name in sorted(os.listdir(folder)) if os.path.isdir(folder) else []:
+        with open(os.path.join(out, "tabular", "fig5_4", name)) as f:
+            run = json.load(f)
+        a = run["args"]
+        runs[(a["algorithm"], a["number_obstacles"], a["heuristic"])] = run
+    algorithms = [a for a in TABLE_5_1 if (a, 0, True) in runs and (a, 1, True) in runs]
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4), sharey=True)
+    for ax, obstacles in zip(axes, (0, 1) if algorithms else ()):
+        for a in algorithms:
+            run = runs[(a, obstacles, True)]
+            x = (np.arange(len(run["curve_rho"])) + 1) * run["curve_window"]
+            ax.plot(x, run["curve_rho"], label=a)
+        ax.set(xlabel="training episode", title=f"6x6, corner starts, {obstacles} obstacle(s)")
+        ax.grid(alpha=0.3)
+    if algorithms:
+        axes[0].set_ylabel(f"mean ρ per {run['curve_window']:,} episodes")
+        axes[0].legend()
+        fig.tight_layout()
+        fig.savefig(os.path.join(out, "tabular_fig5_4.png"), dpi=120)
+    plt.close(fig)
+    settings = fig55["settings"]
+    fig, ax = plt.subplots(figsize=(7, 4))
+    for obstacles in sorted({s["obstacles"] for s in settings}):
+        row = [s for s in settings if s["obstacles"] == obstacles]
+        ax.plot([s["size"] for s in row], [s["trained"] for s in row], marker="o", label=f"{obstacles} obstacles")
+    ax.set(xlabel="map size N (trained on 4-10)", ylabel="mean ρ", title="Q-learning table on ch5_eval")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(os.path.join(out, "tabular_fig5_5.png"), dpi=120)
+    plt.close(fig)
+
+    def last(run):  # mean ρ of the last 10% of training
+        c = run["curve_rho"]
+        return np.mean(c[-max(1, len(c) // 10):])
+
+    m = fig55["model"]
+    sizes = sorted({s["size"] for s in settings})
+    obstacle_counts = sorted({s["obstacles"] for s in settings})
+    cell = {(s["size"], s["obstacles"]): s for s in settings}
+    intro = ["Every number here comes from `tabular_q.py` runs on one core of a 2-core CPU; ρ = steps / free "
+             "cells as gridworld counts it, so a perfect sweep of an obstacle-free N×N map is (N² − 1)/N² "
+             "(0.972 on 6×6), not the 1 of §5.4.1.", ""]
+    comparison = [] if not algorithms else [
+        "**Fig. 5.4** — 100,000 training episodes on 6×6 with corner starts, heuristic on, "
+        "mean ρ per 1,000 episodes (`results/tabular/fig5_4/*.json`; commands in the README):", "",
+        "![Fig. 5.4](tabular_fig5_4.png)", "",
+        table(["algorithm", "ρ, last 10k episodes, 0 obstacles", "ρ, last 10k episodes, 1 obstacle"],
+              [[a, f"{last(runs[(a, 0, True)]):.4f}", f"{last(runs[(a, 1, True)]):.4f}"] for a in algorithms]), "",
+        "**Table 5.1** — training time (s) of those 100,000 episodes, ours (one core of a 2-core CPU, "
+        "256 worlds stepped together) / the dissertation's (AMD Ryzen 7 5800H, one episode at a time):", "",
+        table(["method", "heuristic, no obstacles", "heuristic, one obstacle", "no heuristic, no obstacles",
+               "no heuristic, one obstacle"],
+              [[a] + [f"{runs[(a, o, h)]['wall_seconds']:.0f} / {TABLE_5_1[a][k]}" if (a, o, h) in runs else
+                      f"– / {TABLE_5_1[a][k]}" for k, (h, o) in enumerate(((True, 0), (True, 1), (False, 0), (False, 1)))]
+               for a in algorithms]), ""]
+    return intro + comparison + [
+        f"**Fig. 5.5** — the committed table `models/tabular_q.npz` (Q-learning, sizes "
+        f"{m['args']['min_size']}-{m['args']['size']}, 0-{m['args']['number_obstacles']} obstacles, random starts): "
+        f"{m['episodes']:,} training episodes in {m['wall_seconds'] / 60:.0f} min "
+        f"({m['episodes_per_second']:,.0f} episodes/s, {m['states']:,} states) against the dissertation's 17.5 M. "
+        "Greedy on `maps/ch5_eval.npz`, 100 maps per setting (the dissertation used 1,000), mean ρ; in brackets "
+        "the untrained table (a random move toward an uncovered neighbour, the heuristic at dead ends):", "",
+        table(["size \\ obstacles"] + [str(o) for o in obstacle_counts],
+              [[str(z)] + [f"{cell[(z, o)]['trained']:.3f} ({cell[(z, o)]['untrained']:.3f})" for o in obstacle_counts]
+               for z in sizes]), "",
+        "![Fig. 5.5](tabular_fig5_5.png)",
+    ]
 
 
 def report(args: ReportArgs) -> None:
@@ -389,6 +524,14 @@ def report(args: ReportArgs) -> None:
         with open(rainbow_path) as f:
             rb = json.load(f)
         full_info, sensor_based, point_to_point = rainbow_sections(rb, cpp, ext, args.out, table)
+    tabular_path = os.path.join(args.out, "tabular", "fig5_5.json")
+    tabular_model = os.path.join(os.path.dirname(os.path.abspath(__file__)), DEFAULT_CHECKPOINT["tabular"])
+    if os.path.exists(tabular_model) and (not args.reuse or not os.path.exists(tabular_path)):
+        tabular_results(args.out)
+    tabular = [NOT_TRAINED.format(script="tabular_q.py")]
+    if os.path.exists(tabular_path):
+        with open(tabular_path) as f:
+            tabular = tabular_sections(args.out, json.load(f), table)
 
     lines = [
         "# Results", "",
@@ -419,7 +562,7 @@ def report(args: ReportArgs) -> None:
                for n in agents]), "",
         "![multi-agent baselines](marl_baselines.png)", "",
         NOT_TRAINED.format(script="rainbow_marl.py"), "",
-        "## Tabular agent (Fig. 5.4, Table 5.1, Fig. 5.5)", "", NOT_TRAINED.format(script="tabular_q.py"), "",
+        "## Tabular agent (Fig. 5.4, Table 5.1, Fig. 5.5)", "", *tabular, "",
     ]
     with open(os.path.join(args.out, "RESULTS.md"), "w") as f:
         f.write("\n".join(lines))
