@@ -426,6 +426,7 @@ def evaluate_policy(q: QNetwork, scenarios: list, frames: int, sensor: str = "fu
     done, truncated = np.zeros(n, bool), np.zeros(n, bool)
     since_new, used = np.zeros(n, np.int64), np.zeros(n, np.int64)
     times_stuck, owed = np.zeros(n, np.int64), np.zeros(n, np.int64)  # owed: new cells left to the heuristic
+    steps = np.zeros(n, np.int64)  # each world's own, not counting the waits after its end
     history = [core.agent_cells()[:, 0]] * 6  # cells at t-5 .. t
     q.reset_noise(False)
     with torch.no_grad():
@@ -444,6 +445,7 @@ def evaluate_policy(q: QNetwork, scenarios: list, frames: int, sensor: str = "fu
                     action = np.where(fallback, core.heuristic_actions(random_ties)[:, 0], action)
                 used += fallback
             ev = core.step(np.where(done, gridworld.WAIT, action)[:, None])
+            steps += ~done
             since_new = np.where(ev["new"][:, 0], 0, since_new + 1)
             owed = np.maximum(owed - ev["new"][:, 0], 0)
             history = history[1:] + [core.agent_cells()[:, 0]]
@@ -451,7 +453,10 @@ def evaluate_policy(q: QNetwork, scenarios: list, frames: int, sensor: str = "fu
             done |= ev["terminated"] | ev["truncated"]
             stack.push(observe(core), np.zeros(n, bool))
     q.reset_noise(True)
-    return {**core.metrics(), "truncated": truncated, "heuristic_steps": used}
+    m = core.metrics()
+    return {**m, "steps": steps, "time_save": steps / np.maximum(m["n_poi_start"], 1),
+            "rho": steps / np.maximum(core.n_free, 1),
+            "truncated": truncated, "heuristic_steps": used}
 
 
 def save_checkpoint(path: str, state: dict) -> None:

@@ -866,3 +866,17 @@ def test_demonstration_steps_let_the_heuristic_act(tmp_path, monkeypatch, restor
     alone = [e.value for e in acc.Scalars("charts/solved_alone")]
     assert len(alone) > 5 and not any(alone)
     assert "losses/td_loss" in acc.Tags()["scalars"]  # and it learned meanwhile
+
+
+def test_evaluate_policy_counts_each_worlds_own_steps():
+    """Worlds that finish early wait for the others; their steps stop at their own end: an
+    empty map swept alone takes as many steps as the heuristic-only walk of the same map."""
+    small = gw.Scenario(np.zeros((4, 4), bool), np.array([[0, 0]]))
+    large = gw.Scenario(np.zeros((12, 12), bool), np.array([[0, 0]]))
+    q = rc.QNetwork(3, V, 16, 0.0)
+    both = rc.evaluate_policy(q, [small, large], 3)
+    alone = rc.evaluate_policy(q, [small], 3)
+    assert both["completed"].all()
+    assert both["steps"][0] == alone["steps"][0] < both["steps"][1]
+    assert both["time_save"][0] == pytest.approx(alone["steps"][0] / 15)  # 15 cells to cover
+    assert both["rho"][0] == pytest.approx(alone["steps"][0] / 16)
