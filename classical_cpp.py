@@ -505,21 +505,34 @@ def evaluate(name: str, scenarios: list[Scenario]) -> tuple[list[dict], float]:
     return [replay(s, p) for s, p in zip(scenarios, paths)], 1000 * seconds / len(scenarios)
 
 
+def cpp_eval_subset(per_size: int) -> tuple[list[Scenario], np.ndarray]:
+    """The first `per_size` cpp_eval maps of each size 5-30, and their sizes."""
+    path = os.path.join(ROOT, "maps", "cpp_eval.npz")
+    sizes = np.load(path)["size"]
+    keep = np.concatenate([np.flatnonzero(sizes == s)[:per_size] for s in range(5, 31)])
+    all_maps = gridworld.load_dataset(path)
+    return [all_maps[i] for i in keep], sizes[keep]
+
+
+def external_episodes() -> list[tuple[str, Scenario]]:
+    """Every MovingAI map of maps/external with each of its reference starts."""
+    folder = os.path.join(ROOT, "maps", "external")
+    with open(os.path.join(folder, "references.json")) as f:
+        refs = json.load(f)
+    episodes = []
+    for name, rs in refs.items():
+        grid = gridworld.load_map(os.path.join(folder, name)).obstacles
+        episodes += [(name, with_starts(Scenario(grid, np.array([r["start"]])))) for r in rs]
+    return episodes
+
+
 def report(per_size: int) -> None:
     """The README tables: mean overlap by size band on cpp_eval, per external map, and the
     multi-agent baselines' time-save factor on marl_eval."""
     bands = [(5, 10), (11, 15), (16, 20), (21, 25), (26, 30)]
     maps = os.path.join(ROOT, "maps")
-    data = np.load(os.path.join(maps, "cpp_eval.npz"))
-    keep = np.concatenate([np.flatnonzero(data["size"] == s)[:per_size] for s in range(5, 31)])
-    all_maps = gridworld.load_dataset(os.path.join(maps, "cpp_eval.npz"))
-    cpp = [all_maps[i] for i in keep]
-    sizes = data["size"][keep]
-    refs = json.load(open(os.path.join(maps, "external", "references.json")))
-    external = []  # every map with each of its reference starts
-    for name, rs in refs.items():
-        grid = gridworld.load_map(os.path.join(maps, "external", name)).obstacles
-        external += [(name, with_starts(Scenario(grid, np.array([r["start"]])))) for r in rs]
+    cpp, sizes = cpp_eval_subset(per_size)
+    external = external_episodes()
     result = {"per_size": per_size, "lkh_time_limit_s": LKH_TIME_LIMIT, "cpp_eval": {},
               "external": {}, "marl_eval": {}}
     for name in ("greedy", "boustrophedon", "spiral-stc", "wavefront", "lkh"):

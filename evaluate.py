@@ -248,10 +248,8 @@ def rainbow_results(out: str, per_size: int, p2p_maps: int, model: str) -> dict:
     heuristic fallback, camera r = 3), p2p_eval and the MovingAI maps; the greedy planner per
     size beside it. Written to results/rainbow_cpp.json."""
     root = os.path.dirname(os.path.abspath(__file__))
-    cpp = os.path.join(root, "maps", "cpp_eval.npz")
-    keep = np.concatenate([np.flatnonzero(np.load(cpp)["size"] == z)[:per_size] for z in range(5, 31)])
-    chosen = set(keep.tolist())
-    episodes = [e for i, e in enumerate(scenarios_from(Args(dataset=cpp))) if i in chosen]
+    scenarios, sizes = classical_cpp.cpp_eval_subset(per_size)
+    episodes = [(f"cpp_eval.npz[{z}x{z}]", classical_cpp.with_starts(s)) for s, z in zip(scenarios, sizes)]
 
     def by_size(rows):
         out = {}
@@ -265,7 +263,8 @@ def rainbow_results(out: str, per_size: int, p2p_maps: int, model: str) -> dict:
                                                              for r in g])), 4))
                 for z, g in out.items()}
 
-    result = {"per_size": per_size, "model": json.load(open(os.path.splitext(model)[0] + ".json"))}
+    with open(os.path.splitext(model)[0] + ".json") as f:
+        result = {"per_size": per_size, "model": json.load(f)}
     for key, kw in (("full", {}), ("full_no_heuristic", {"heuristic": False}),
                     ("camera_r3", {"sensor": "camera", "sensor_range": 3})):
         rows = run_rainbow(Args(policy="rainbow", checkpoint=model, **kw), episodes)
@@ -279,13 +278,8 @@ def rainbow_results(out: str, per_size: int, p2p_maps: int, model: str) -> dict:
                                                                         zip(rows, shortest)])), 4),
                      "completion": round(float(np.mean([r["completed"] for r in rows])), 4),
                      "mean_extra_steps": round(float(np.mean([r["steps"] - b for r, b in zip(rows, shortest)])), 3)}
-    refs = json.load(open(os.path.join(root, "maps", "external", "references.json")))
-    ext_dir = os.path.join(root, "maps", "external")
-    external = [(name, classical_cpp.with_starts(Scenario(gridworld.load_map(os.path.join(ext_dir, name)).obstacles,
-                                                          np.array([r["start"]]))))
-                for name, rs in refs.items() for r in rs]
     result["external"] = {}
-    for row in run_rainbow(Args(policy="rainbow", checkpoint=model), external):
+    for row in run_rainbow(Args(policy="rainbow", checkpoint=model), classical_cpp.external_episodes()):
         result["external"].setdefault(row["map"], []).append(row["overlap"])
     with open(os.path.join(out, "rainbow_cpp.json"), "w") as f:
         json.dump(result, f, indent=1)
@@ -566,7 +560,7 @@ def report(args: ReportArgs) -> None:
     ]
     with open(os.path.join(args.out, "RESULTS.md"), "w") as f:
         f.write("\n".join(lines))
-    print(f"wrote {args.out}/RESULTS.md and 3 figures")
+    print(f"wrote {args.out}/RESULTS.md and its figures")
 
 
 if __name__ == "__main__":
