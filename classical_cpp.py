@@ -514,6 +514,16 @@ def cpp_eval_subset(per_size: int) -> tuple[list[Scenario], np.ndarray]:
     return [all_maps[i] for i in keep], sizes[keep]
 
 
+def marl_eval_subset(agents: int, every: int = 5) -> tuple[list[Scenario], np.ndarray]:
+    """Every `every`-th marl_eval layout of sizes 10-30 with its first `agents` starts (the
+    N + 1-agent episode adds one agent to the N-agent one, §7.5.1), and their sizes."""
+    path = os.path.join(ROOT, "maps", "marl_eval.npz")
+    sizes = np.load(path)["size"]
+    keep = np.flatnonzero(sizes >= 10)[::every]
+    all_maps = gridworld.load_dataset(path)
+    return [with_starts(Scenario(all_maps[i].obstacles, all_maps[i].starts[:agents])) for i in keep], sizes[keep]
+
+
 def external_episodes() -> list[tuple[str, Scenario]]:
     """Every MovingAI map of maps/external with each of its reference starts."""
     folder = os.path.join(ROOT, "maps", "external")
@@ -530,7 +540,6 @@ def report(per_size: int) -> None:
     """The README tables: mean overlap by size band on cpp_eval, per external map, and the
     multi-agent baselines' time-save factor on marl_eval."""
     bands = [(5, 10), (11, 15), (16, 20), (21, 25), (26, 30)]
-    maps = os.path.join(ROOT, "maps")
     cpp, sizes = cpp_eval_subset(per_size)
     external = external_episodes()
     result = {"per_size": per_size, "lkh_time_limit_s": LKH_TIME_LIMIT, "cpp_eval": {},
@@ -545,11 +554,8 @@ def report(per_size: int) -> None:
         for (m, _), r in zip(external, rows):
             result["external"].setdefault(m, {}).setdefault(name, []).append(r["overlap"])
         print(name, json.dumps(result["cpp_eval"][name]), flush=True)
-    marl = gridworld.load_dataset(os.path.join(maps, "marl_eval.npz"))
-    msizes = np.load(os.path.join(maps, "marl_eval.npz"))["size"]
     for n in (2, 5, 10):
-        chosen = [with_starts(Scenario(s.obstacles, s.starts[:n]))
-                  for s, z in zip(marl, msizes) if z >= 10][::5]
+        chosen, _ = marl_eval_subset(n)
         bound = np.mean([lower_bound(s) / max(int((~s.obstacles).sum()) - n, 1) for s in chosen])
         entry = {"maps": len(chosen), "lower_bound_time_save": round(float(bound), 4)}
         for name in ("greedy", "partition"):

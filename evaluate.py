@@ -10,9 +10,13 @@ overlap, time-save factor and steps, completion rate; overall and by map size). 
 counted by gridworld's own environment. Policies: the planners of classical_cpp.py (greedy,
 boustrophedon, spiral-stc, wavefront, lkh, partition) and the chapter-6 agent `rainbow`
 (rainbow_cpp.py; --checkpoint, default models/rainbow_cpp.pt, noise off, heuristic fallback
-unless --no-heuristic), the chapter-5 agent `tabular` (tabular_q.py; --checkpoint, default
+unless --no-heuristic), the chapter-7 agents `marl` (rainbow_marl.py; default
+models/rainbow_marl.pt, decentralised: every agent acts on its own observation; --action-loss,
+--faulty-agent-at), the chapter-5 agent `tabular` (tabular_q.py; --checkpoint, default
 models/tabular_q.npz, greedy, the heuristic at dead ends unless --no-heuristic, --sensor builds
-the heuristic's map); marl plugs in as its script lands.
+the heuristic's map).
+
+    python evaluate.py --policy marl --dataset maps/marl_eval.npz --agents 5 --faulty-agent-at 0.5 --out DIR
 """
 from __future__ import annotations
 
@@ -31,8 +35,9 @@ import classical_cpp
 import gridworld
 from gridworld import Scenario
 
-LEARNED = {"marl": "rainbow_marl.py"}  # not in the repository yet
-DEFAULT_CHECKPOINT = {"rainbow": "models/rainbow_cpp.pt", "tabular": "models/tabular_q.npz"}
+LEARNED = ("rainbow", "marl", "tabular")
+DEFAULT_CHECKPOINT = {"rainbow": "models/rainbow_cpp.pt", "marl": "models/rainbow_marl.pt",
+                      "tabular": "models/tabular_q.npz"}
 COLUMNS = ["map", "size", "n_free", "agents", "start", "steps", "revisits", "overlap", "time_save",
            "completed", "truncated", "heuristic_steps"]
 
@@ -62,11 +67,20 @@ class Args:
     sensor_failure: float = 0.0
     """fraction of steps whose sensor reading is dropped (§6.5.3.3)"""
     faulty_agent_at: float | None = None
-    """freeze the last agent after this fraction of the episode's battery (§7.5.3.3)"""
+    """marl: the last agent freezes once this fraction of the points of interest is covered
+    (§7.5.3.3: 0.5, halfway)"""
+    action_loss: float = 0.0
+    """marl: chance an agent misses its action at a step and stays where it is"""
     heuristic: bool = True
     """learned policies: hand over to the navigation heuristic when stuck (§6.5.2.1)"""
     limit: int = 0
     """evaluate only the first LIMIT scenarios (0: all)"""
+    min_size: int = 0
+    """evaluate only maps whose longer edge is at least this"""
+    max_size: int = 0
+    """evaluate only maps whose longer edge is at most this (0: no bound)"""
+    every: int = 1
+    """evaluate every k-th of the maps left"""
     workers: int = 1
     """processes to spread the episodes over"""
     out: str = "runs/eval"
@@ -85,6 +99,12 @@ def scenarios_from(args: Args) -> list[tuple[str, Scenario]]:
         named.append((os.path.basename(path), gridworld.load_map(path)))
     if not named:
         raise ValueError("give --maps FILE... or --dataset FILE")
+    if args.every < 1:
+        raise ValueError(f"--every must be >= 1, got {args.every}")
+    named = [(n, s) for n, s in named
+             if args.min_size <= max(s.obstacles.shape) <= (args.max_size or max(s.obstacles.shape))][::args.every]
+    if not named:
+        raise ValueError(f"no map has an edge in [{args.min_size}, {args.max_size or 'any'}]")
     if args.limit:
         named = named[:args.limit]
     given = {}
@@ -123,8 +143,8 @@ def run_rainbow(args: Args, episodes: list[tuple[str, Scenario]]) -> list[dict]:
     import rainbow_cpp
     if args.agents != 1:
         raise ValueError("rainbow is single-agent; use --agents 1 (marl for several)")
-    if args.faulty_agent_at is not None:
-        raise ValueError("--faulty-agent-at needs several agents (the marl policy)")
+    if args.faulty_agent_at is not None or args.action_loss:
+        raise ValueError("--faulty-agent-at and --action-loss need several agents (the marl policy)")
     q = rainbow_cpp.load_policy(args.checkpoint or DEFAULT_CHECKPOINT["rainbow"])
     frames = q.conv[0].in_channels // 4
     rows = []
@@ -137,14 +157,35 @@ def run_rainbow(args: Args, episodes: list[tuple[str, Scenario]]) -> list[dict]:
     return rows
 
 
+def run_marl(args: Args, episodes: list[tuple[str, Scenario]]) -> list[dict]:
+    """The chapter-7 agents (rainbow_marl.py): noise off, decentralised, heuristic fallback
+    unless disabled; heuristic_steps counts agent-steps."""
+    import rainbow_marl
+    if args.faulty_agent_at is not None and (args.agents < 2 or not 0 <= args.faulty_agent_at <= 1):
+        raise ValueError("--faulty-agent-at needs --agents >= 2 and a fraction in [0, 1]")
+    if not 0 <= args.action_loss < 1:
+        raise ValueError(f"--action-loss must be in [0, 1), got {args.action_loss}")
+    q = rainbow_marl.load_policy(args.checkpoint or DEFAULT_CHECKPOINT["marl"])
+    frames = q.conv[0].in_channels // 4
+    rows = []
+    for i in range(0, len(episodes), 64):  # 64 worlds per batched rollout
+        part = episodes[i:i + 64]
+        m = rainbow_marl.evaluate_policy(q, [s for _, s in part], frames, args.sensor, args.sensor_range,
+                                         args.sensor_failure, args.heuristic, action_loss=args.action_loss,
+                                         faulty_at=args.faulty_agent_at, seed=args.seed + i)
+        for j, (name, s) in enumerate(part):
+            rows.append(_row(name, s, {k: v[j].item() for k, v in m.items()}))
+    return rows
+
+
 def run_tabular(args: Args, episodes: list[tuple[str, Scenario]]) -> list[dict]:
     """The chapter-5 agent (tabular_q.py): greedy, never-seen states and dead ends take the
     heuristic (off with --no-heuristic); --sensor builds the map the heuristic plans on."""
     import tabular_q
     if args.agents != 1:
         raise ValueError("tabular is single-agent; use --agents 1")
-    if args.sensor_failure or args.faulty_agent_at is not None:
-        raise ValueError("tabular: --sensor-failure and --faulty-agent-at are not modelled in chapter 5")
+    if args.sensor_failure or args.faulty_agent_at is not None or args.action_loss:
+        raise ValueError("tabular: --sensor-failure, --faulty-agent-at and --action-loss are not modelled in chapter 5")
     path = args.checkpoint or DEFAULT_CHECKPOINT["tabular"]
     table = tabular_q.QTable.load(path)
     if table.sensor_range != args.sensor_range:
@@ -181,21 +222,20 @@ def summarize(rows: list[dict]) -> dict:
 
 
 def main(args: Args) -> dict:
-    if args.policy in LEARNED:
-        script = LEARNED[args.policy]
-        raise ValueError(f"--policy {args.policy} needs {script}, which is not in this repository yet")
-    if args.policy not in classical_cpp.PLANNERS and args.policy not in ("rainbow", "tabular"):
+    if args.policy not in classical_cpp.PLANNERS and args.policy not in LEARNED:
         raise ValueError(f"unknown policy {args.policy!r}; choose from "
-                         f"{sorted(classical_cpp.PLANNERS) + ['rainbow', 'tabular'] + sorted(LEARNED)}")
+                         f"{sorted(classical_cpp.PLANNERS) + list(LEARNED)}")
     if args.sensor not in gridworld.SENSORS:
         raise ValueError(f"--sensor must be one of {gridworld.SENSORS}, got {args.sensor!r}")
     if args.policy == "rainbow":
         return _write(args, run_rainbow(args, scenarios_from(args)))
+    if args.policy == "marl":
+        return _write(args, run_marl(args, scenarios_from(args)))
     if args.policy == "tabular":
         return _write(args, run_tabular(args, scenarios_from(args)))
-    if args.sensor != "full" or args.sensor_failure or args.faulty_agent_at is not None:
-        raise ValueError("the classical planners plan with full information and no faults; "
-                         "--sensor, --sensor-failure and --faulty-agent-at apply to learned policies")
+    if args.sensor != "full" or args.sensor_failure or args.faulty_agent_at is not None or args.action_loss:
+        raise ValueError("the classical planners plan with full information and no faults; --sensor, "
+                         "--sensor-failure, --faulty-agent-at and --action-loss apply to learned policies")
     episodes = scenarios_from(args)
     rows = []
     if args.workers > 1:  # contiguous chunks, so the rows keep the episodes' order
@@ -284,6 +324,105 @@ def rainbow_results(out: str, per_size: int, p2p_maps: int, model: str) -> dict:
     with open(os.path.join(out, "rainbow_cpp.json"), "w") as f:
         json.dump(result, f, indent=1)
     return result
+
+
+def marl_results(out: str, model: str, every: int = 10) -> dict:
+    """A rainbow_marl model on marl_eval (sizes 10-30, every `every`-th layout) with N = 1..15
+    agents beside the greedy planner with claims, and the faulty-agent
+    experiment of §7.5.3.3 (N = 2, 5, 10: the last agent freezes halfway). Written to
+    results/rainbow_marl.json."""
+    with open(os.path.splitext(model)[0] + ".json") as f:
+        result = {"every": every, "model": json.load(f), "agents": {}, "faulty": {}}
+
+    def mean(rows, key):
+        return round(float(np.mean([r[key] for r in rows])), 4)
+
+    for n in range(1, 16):
+        scenarios, sizes = classical_cpp.marl_eval_subset(n, every)
+        episodes = [(f"marl_eval.npz[{z}x{z}]", s) for s, z in zip(scenarios, sizes)]
+        rows = run_marl(Args(policy="marl", checkpoint=model, agents=n), episodes)
+        greedy = run_planner("greedy", episodes)
+        result["agents"][str(n)] = {
+            "maps": len(rows), "time_save": mean(rows, "time_save"), "completion": mean(rows, "completed"),
+            "heuristic_share": round(float(np.mean([r["heuristic_steps"] / (n * r["steps"]) for r in rows])), 4),
+            "greedy": mean(greedy, "time_save"),
+            "by_size": {str(z): mean([r for r, k in zip(rows, sizes) if k == z], "time_save") for z in np.unique(sizes)}}
+        if n in (2, 5, 10):
+            faulty = run_marl(Args(policy="marl", checkpoint=model, agents=n, faulty_agent_at=0.5), episodes)
+            result["faulty"][str(n)] = {"time_save": mean(faulty, "time_save"), "completion": mean(faulty, "completed")}
+        print(n, json.dumps(result["agents"][str(n)]), json.dumps(result["faulty"].get(str(n))), flush=True)
+    with open(os.path.join(out, "rainbow_marl.json"), "w") as f:
+        json.dump(result, f, indent=1)
+    return result
+
+
+def marl_sections(mr: dict, marl: dict, out: str, table) -> list[str]:
+    """RESULTS.md lines for the chapter-7 agent, and its time-save figure."""
+    import matplotlib.pyplot as plt
+    agents = sorted(mr["agents"], key=int)
+    n_axis = [int(n) for n in agents]
+    fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4))
+    left.plot(n_axis, [mr["agents"][n]["time_save"] for n in agents], marker="o", label="rainbow_marl + heuristic")
+    left.plot(n_axis, [mr["agents"][n]["greedy"] for n in agents], marker=".", label="greedy planner (claims)")
+    base = sorted(marl, key=int)
+    left.plot([int(n) for n in base], [marl[n]["partition"] for n in base], "s", label="partition planner")
+    left.plot(n_axis, [1 / n for n in n_axis], "k--", label="1/N")
+    left.set(xlabel="agents N", ylabel="mean time-save factor $t_{sf}$", yscale="log",
+             title="marl_eval, sizes 10-30")
+    for n in ("2", "5", "10", "15"):
+        by = mr["agents"][n]["by_size"]
+        right.plot([int(z) for z in by], list(by.values()), marker=".", label=f"N = {n}")
+    right.set(xlabel="map size (edge, cells)", ylabel="mean $t_{sf}$", yscale="log", title="rainbow_marl by size")
+    for ax in (left, right):
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(os.path.join(out, "rainbow_marl_time_save.png"), dpi=120)
+    plt.close(fig)
+    m = mr["model"]
+    targets = {"2": 0.53, "5": 0.30, "10": 0.15}
+    met = [f"N = {n}: {mr['agents'][n]['time_save']:.3f} against ≤ {t} "
+           f"({'met' if mr['agents'][n]['time_save'] <= t else 'not met'})" for n, t in targets.items()]
+    several = [n for n in agents if int(n) > 1]
+    below = [n for n in several if mr["agents"][n]["time_save"] < mr["agents"][n]["greedy"]]
+    rewards = []
+    for name in ("pretrained", "competitive", "cooperative", "size_invariant"):
+        path = os.path.join(out, "marl_rewards", name, "summary.json")
+        if os.path.exists(path):
+            with open(path) as f:
+                s = json.load(f)["all"]
+            rewards.append([name, str(s["episodes"]), f"{s['time_save']['mean']:.3f}",
+                            f"{100 * s['completion_rate']:.0f}%"])
+    if rewards:
+        rewards = ["", "Reward structures (§7.5.2, Figs. 7.7-7.8) at N = 2, K = 0.25: 15,000 steps each from "
+                   "`models/rainbow_cpp.pt` with the dissertation's recipe (no margin loss), stage file "
+                   "`models/rainbow_marl_reward_stages.yaml`; mean $t_{sf}$ on `marl_eval` sizes 10-24, every 10th map "
+                   "(README for the commands; `pretrained` is the single-agent model before any multi-agent training):",
+                   "", table(["reward", "maps", "mean t_sf", "completed"], rewards)]
+    return [
+        f"Model `models/rainbow_marl.pt` (hidden {m['args']['hidden']}, from `{m['args']['init_from']}`): "
+        f"{m['global_step']:,} environment steps, last stage {m['stage']}, {m['wall_seconds'] / 60:.0f} min with "
+        f"{m['torch_threads']} torch thread(s) on a 2-core CPU machine; flags in `models/rainbow_marl.json`. Decentralised execution, noise off, heuristic "
+        "fallback on.", "",
+        f"Targets (issue #7, mean $t_{{sf}}$ on sizes 10-30): {'; '.join(met)}. Completion "
+        f"{100 * min(mr['agents'][n]['completion'] for n in agents):.0f}% at worst. Below the greedy planner at "
+        f"{len(below)} of the {len(several)} agent counts 2-{several[-1]}.", "",
+        f"`marl_eval` sizes 10-30, every {mr['every']}th layout, the first N stored starts (the N + 1-agent episode "
+        "adds one agent to the N-agent one); heuristic share = fraction of agent-steps the fallback took:", "",
+        table(["N", "maps", "rainbow_marl", "greedy (claims)", "1/N", "completed", "heuristic share"],
+              [[n, str(mr["agents"][n]["maps"]), f"{mr['agents'][n]['time_save']:.3f}",
+                f"{mr['agents'][n]['greedy']:.3f}", f"{1 / int(n):.3f}",
+                f"{100 * mr['agents'][n]['completion']:.0f}%", f"{mr['agents'][n]['heuristic_share']:.2f}"]
+               for n in agents]), "",
+        "![rainbow_marl time-save factor](rainbow_marl_time_save.png)", "",
+        "Faulty agent (§7.5.3.3, Fig. 7.12): the last agent freezes once half the points of interest are covered; "
+        "mean $t_{sf}$ beside N and N - 1 working agents on the same maps:", "",
+        table(["N", "N working", "N, one faulty", "completed (faulty)", "N - 1 working"],
+              [[n, f"{mr['agents'][n]['time_save']:.3f}", f"{f['time_save']:.3f}", f"{100 * f['completion']:.0f}%",
+                f"{mr['agents'][str(int(n) - 1)]['time_save']:.3f}" if str(int(n) - 1) in mr["agents"] else "—"]
+               for n, f in mr["faulty"].items()]),
+        *rewards,
+    ]
 
 
 NOT_TRAINED = ("*Not trained yet:* `{script}` is an open issue; this section fills in when "
@@ -518,6 +657,14 @@ def report(args: ReportArgs) -> None:
         with open(rainbow_path) as f:
             rb = json.load(f)
         full_info, sensor_based, point_to_point = rainbow_sections(rb, cpp, ext, args.out, table)
+    marl_path = os.path.join(args.out, "rainbow_marl.json")
+    marl_model = os.path.join(os.path.dirname(os.path.abspath(__file__)), DEFAULT_CHECKPOINT["marl"])
+    if os.path.exists(marl_model) and (not args.reuse or not os.path.exists(marl_path)):
+        marl_results(args.out, marl_model)
+    multi_agent = [NOT_TRAINED.format(script="rainbow_marl.py")]
+    if os.path.exists(marl_path):
+        with open(marl_path) as f:
+            multi_agent = marl_sections(json.load(f), marl, args.out, table)
     tabular_path = os.path.join(args.out, "tabular", "fig5_5.json")
     tabular_model = os.path.join(os.path.dirname(os.path.abspath(__file__)), DEFAULT_CHECKPOINT["tabular"])
     if os.path.exists(tabular_model) and (not args.reuse or not os.path.exists(tabular_path)):
@@ -555,7 +702,7 @@ def report(args: ReportArgs) -> None:
                 f"{marl[str(n)]['partition']:.3f}", f"{marl[str(n)]['lower_bound_time_save']:.3f}"]
                for n in agents]), "",
         "![multi-agent baselines](marl_baselines.png)", "",
-        NOT_TRAINED.format(script="rainbow_marl.py"), "",
+        *multi_agent, "",
         "## Tabular agent (Fig. 5.4, Table 5.1, Fig. 5.5)", "", *tabular, "",
     ]
     with open(os.path.join(args.out, "RESULTS.md"), "w") as f:

@@ -166,10 +166,12 @@ class EnvConfig:
         if self.number_points_of_interest < 0 or self.battery_factor <= 0:
             bad("number_points_of_interest must be >= 0 and battery_factor > 0")
         if self.map_configuration is None and self.dataset_path is None:
-            cells = self.size * self.size if not self.random_size else self.min_size ** 2
-            if self.number_obstacles < 0 or self.number_obstacles > cells - self.number_agents - 1:
-                bad(f"{self.number_obstacles} obstacles and {self.number_agents} agent(s) do not "
-                    f"fit a {int(math.sqrt(cells))}x{int(math.sqrt(cells))} map with a cell to cover")
+            smallest = self.min_size if self.random_size else self.size
+            if self.number_agents > smallest ** 2 - 1:
+                bad(f"{self.number_agents} agent(s) do not fit a {smallest}x{smallest} map with a cell to cover")
+            if self.number_obstacles < 0 or self.number_obstacles > self.size ** 2 - self.number_agents - 1:
+                bad(f"{self.number_obstacles} obstacles and {self.number_agents} agent(s) do not fit a "
+                    f"{self.size}x{self.size} map with a cell to cover")  # smaller maps draw fewer (Tables 6.2, 7.2)
         if not self.starting_position_random and self.starting_position is None:
             bad("starting_position_random is False but no starting_position is given")
 
@@ -546,11 +548,12 @@ class GridWorldCore:
             self.pos = np.zeros((B, N), np.int64)
             self.active = np.zeros((B, N), bool)
             self.last_action = np.full((B, N), WAIT, np.int64)
+            self.frozen = np.zeros((B, N), bool)  # faulty agents (§7.5.3.3)
             self.hw = np.ones((B, 2), np.int64)
             for k in ("battery", "budget", "steps", "new_cells", "agent_moves", "n_poi_start",
                       "n_free", "remaining"):
                 setattr(self, k, np.zeros(B, np.int64))
-            self.all_active, self.any_large = True, False
+            self.all_active, self.any_large, self.any_frozen = True, False, False
         else:
             b = np.arange(B)[:, None]
             self.pos = np.where(self.active, self._flat(b, old[0][..., 0], old[0][..., 1]),
@@ -730,6 +733,8 @@ class GridWorldCore:
         self.all_active = bool(self.active.all())
         self.any_large = bool((self.hw.max(1) > self.V // 2).any())
         self.last_action[w] = WAIT
+        self.frozen[w] = False
+        self.any_frozen = bool(self.frozen.any())
         self.budget[w] = np.ceil(cfg.battery_factor * hw[:, 0] * hw[:, 1]).astype(np.int64)
         self.battery[w] = self.budget[w]
         self.steps[w] = self.new_cells[w] = self.agent_moves[w] = 0
@@ -778,10 +783,10 @@ class GridWorldCore:
         if a.view(np.uint64).max() > WAIT:  # as unsigned, a negative action is out of range too
             raise ValueError(f"actions must be in 0..4 (N, S, W, E, WAIT), got {np.unique(a).tolist()}")
         delta = self.delta[a]
-        if cfg.faulty_agent_step is not None or not self.all_active:
-            if cfg.faulty_agent_step is not None:  # §7.5.3.3: a faulty agent freezes
-                a[self.steps >= cfg.faulty_agent_step, cfg.faulty_agent] = WAIT
-            a[~self.active] = WAIT
+        if cfg.faulty_agent_step is not None:  # §7.5.3.3: a faulty agent freezes
+            self.freeze(np.flatnonzero(self.steps >= cfg.faulty_agent_step), cfg.faulty_agent)
+        if self.any_frozen or not self.all_active:
+            a[self.frozen | ~self.active] = WAIT
             delta = self.delta[a]
         waited = a == WAIT
         moving = ~waited
@@ -885,6 +890,15 @@ class GridWorldCore:
             out.append(Scenario(self.obstacle[inner].copy(), cells[b][self.active[b]].copy(),
                                 self.covered[inner].copy()))
         return out
+
+    def freeze(self, worlds, agent) -> None:
+        """Agent `agent` (one index, or one per world) of these worlds stops working for the
+        rest of the episode (§7.5.3.3): it stays where it is, still blocks its cell, and the
+        heuristic gives it no target."""
+        w = np.asarray(worlds, np.int64)
+        if len(w):
+            self.frozen[w, agent] = True
+            self.any_frozen = True
 
     def recharge(self, worlds, factor: float = 2.0) -> None:
         """Give worlds a new battery of factor * h * w steps (partial reset, §6.4.2.2)."""
@@ -1030,11 +1044,13 @@ class GridWorldCore:
             n_targets = np.bitwise_count(targets).sum((1, 2), dtype=np.int64)
         M, rows = B * N, np.arange(B * N)
         yx = self.agent_cells().reshape(M, 2)
-        need = np.where(self.active, np.minimum(N, n_targets)[:, None], 0).ravel()
+        working = self.active & ~self.frozen
+        need = np.where(working, np.minimum(N, n_targets)[:, None], 0).ravel()
         b = np.repeat(np.arange(B), N)
         pas, tg = (passable, targets) if N == 1 else (passable[b], targets[b])
         front = np.zeros_like(pas)
-        front[rows, yx[:, 0], yx[:, 1] >> 6] = np.uint64(1) << (yx[:, 1] & 63).astype(np.uint64)
+        on = working.ravel()  # absent (parked outside the map) and frozen agents search nothing and wait
+        front[rows[on], yx[on, 0], yx[on, 1] >> 6] = np.uint64(1) << (yx[on, 1] & 63).astype(np.uint64)
         visited, layers = front.copy(), [front]
         found = np.zeros(M, np.int64)
         while (found < need).any():  # BFS from every agent until it has reached enough targets

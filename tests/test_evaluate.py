@@ -69,7 +69,8 @@ def test_marl_dataset_prefix_starts_and_workers(tmp_path):
 @pytest.mark.parametrize("kw,message", [
     (dict(policy="rainbow", checkpoint="models/none.pt", maps=("maps/external/empty-8-8.map",)),
      "no such checkpoint"),
-    (dict(policy="marl"), "rainbow_marl.py"),
+    (dict(policy="marl", checkpoint="models/none.pt", dataset="maps/marl_eval.npz", agents=2, limit=1),
+     "no such checkpoint"),
     (dict(policy="nope", maps=("x.map",)), "unknown policy"),
     (dict(policy="greedy"), "--maps"),
     (dict(policy="greedy", maps=("missing.map",)), "missing.map"),

@@ -1,0 +1,732 @@
+"""Parameter-shared Rainbow DQN for cooperative multi-agent coverage (dissertation chapter 7).
+
+    python rainbow_marl.py                                 # Table 7.2 with N = 2, then N = 5, N = 10
+    python rainbow_marl.py --stage-steps-scale 0.001 --num-envs 8      # a short run
+    python rainbow_marl.py --resume --run-name NAME        # continue an interrupted run
+
+One network (rainbow_cpp.py's, whose checkpoints it starts from) acts for every agent of every
+world in one forward pass; each agent sees the map centred on itself, its own last actions,
+out-of-bounds and battery (eq. 7.2), and no agent id. One replay memory holds every agent's
+transitions in a ring segment per (world, agent), so frame stacks and next states never mix
+agents. Rewards follow §7.3.3 (competitive eq. 7.3, cooperative eq. 7.4, size-invariant eq. 7.5
+with gain K); the number of agents is drawn in [1, N] for every episode (§7.4.2.1). The training
+features of §7.4.2 (partial episode bootstrapping, partial resetting, challenging episodes,
+heuristic imitation with claimed targets, curriculum and transfer) are flags, as in
+rainbow_cpp.py. TensorBoard logs go to runs/RUN, checkpoints to runs/RUN/checkpoint.pt and the
+deployable weights (mean weights, fp16) to models/ with a JSON of how they were trained.
+"""
+from __future__ import annotations
+
+import json
+import os
+import random
+import signal
+import time
+from dataclasses import asdict, dataclass
+
+import numpy as np
+import torch
+import torch.nn as nn
+import torch.nn.functional as F
+import tyro
+
+import gridworld
+
+# Table 7.2 (two agents), then repeated with 5 and 10 agents (§7.4.2.2): the default curriculum
+STAGES = [dict(name=f"n{agents}_env{i + 1}", base_steps=steps, size=size, min_size=min_size, random_size=True,
+               number_obstacles=obstacles, obstacles_random=True, number_agents=agents,
+               number_agent_random=True, random_coverage=False)
+          for agents in (2, 5, 10)
+          for i, (steps, size, min_size, obstacles) in enumerate(zip(
+              (1_000_000, 2_000_000, 3_000_000, 5_000_000, 10_000_000, 20_000_000),
+              (5, 10, 15, 20, 25, 30), (4, 5, 10, 10, 10, 5), (5, 10, 20, 30, 40, 50)))]
+
+
+@dataclass
+class Args:
+    run_name: str = "rainbow_marl"
+    """folder under runs/ for TensorBoard logs and the checkpoint"""
+    seed: int = 1
+    """seed of numpy, torch and the environment"""
+    stages: str | None = None
+    """YAML file of named environments (Table 4.1 keys incl. number_agents, `base_steps` each);
+    default: Table 7.2 with N = 2, then with N = 5 and N = 10"""
+    stage_steps_scale: float = 1.0
+    """multiply every stage's base_steps (Table 7.2 is 41 M steps per number of agents)"""
+    total_steps: int = 0
+    """stop after this many environment steps (0: the whole schedule)"""
+    reward_structure: str = "size_invariant"
+    """§7.3.3, for every stage: competitive (eq. 7.3), cooperative (eq. 7.4) or size_invariant
+    (eq. 7.5)"""
+    gain: float = 0.25
+    """the gain K of the others' new cells in eqs. 7.4-7.5"""
+    random_agents: bool = True
+    """draw the number of agents of each episode in [1, N] (§7.4.2.1)"""
+    init_from: str | None = "models/rainbow_cpp.pt"
+    """start from these weights (a rainbow_cpp or rainbow_marl export or checkpoint; transfer,
+    §7.4.2.2); empty string: from scratch"""
+    num_envs: int = 16
+    """worlds acted in together (one forward pass for all their agents)"""
+    buffer_size: int = 1_000_000
+    """replay memory in transitions, shared by all agents (Table 7.1)"""
+    learning_rate: float = 1e-5
+    """Adam learning rate (Table 7.1: a fifth of the single-agent one, the model is pre-trained)"""
+    adam_eps: float = 1.56e-4
+    """Adam epsilon"""
+    gamma: float = 0.999
+    """discount factor"""
+    tau: float = 0.01
+    """soft target update factor (Table 7.1)"""
+    batch_size: int = 32
+    """transitions per gradient step"""
+    learning_starts: int = 5000
+    """environment steps before learning (the heuristic acts until then, §6.4.2.4 condition 1);
+    a new replay memory (another number of agents, or a resumed run) refills this long too"""
+    demonstration_steps: int = 0
+    """environment steps acted by the heuristic alone, extended past learning_starts (DQfD-style
+    pre-training); 0: until learning_starts"""
+    replay_ratio: float = 8.0
+    """sampled transitions per environment step (Algorithm 13: batch 32 every K = 4 steps, however
+    many agents); noise resampled and target soft-updated at every gradient step"""
+    n_step: int = 1
+    """multi-step return length n"""
+    frame_stack: int = 3
+    """stacked frames of map, last action and out-of-bounds"""
+    alpha: float = 0.5
+    """priority exponent"""
+    beta_start: float = 0.4
+    """importance-sampling correction, annealed linearly to 1 over the run"""
+    max_grad_norm: float = 2.5
+    """gradient L2 norm clip"""
+    sigma0: float = 0.5
+    """noisy layers' initial standard deviation"""
+    hidden: int = 256
+    """width of the two hidden layers of each dueling stream (must match --init-from)"""
+    peb: bool = True
+    """partial episode bootstrapping: truncation is not termination"""
+    partial_reset: bool = True
+    """continue a truncated episode, completed by the heuristic"""
+    challenging: float = 0.5
+    """chance a new episode replays one the agents failed (0 disables)"""
+    challenging_size: int = 1000
+    """most failed episodes kept"""
+    imitation: float = 0.9
+    """chance the heuristic acts for an agent when a §6.4.2.4 condition holds for it, or when no
+    more cells are left than agents (0 disables)"""
+    margin_loss: float = 0.0
+    """weight of a DQfD large-margin loss pulling Q toward the heuristic's action (targets claimed
+    among the agents) at every replayed state; 0 keeps the dissertation's recipe"""
+    margin: float = 0.8
+    """the margin by which the heuristic's action must beat every other action"""
+    heuristic_random_ties: bool = False
+    """the heuristic breaks ties at random (§6.3.1) instead of by the first cell"""
+    eval_every: int = 25_000
+    """environment steps between evaluations on held-out marl_eval maps"""
+    eval_maps: int = 32
+    """held-out maps per evaluation (marl_eval sizes up to the current stage's, its N agents)"""
+    save_every: int = 25_000
+    """environment steps between checkpoints"""
+    resume: bool = False
+    """continue runs/RUN/checkpoint.pt (the replay memory restarts empty)"""
+    export: str = "models/rainbow_marl.pt"
+    """deployable weights written at the end and at each checkpoint"""
+
+
+# ----------------------------------------------------------------------------- the network
+class NoisyLinear(nn.Module):
+    """Factorised-Gaussian noisy layer (Fortunato et al.); eq. 6.18. noise(False) zeroes it."""
+
+    def __init__(self, n_in: int, n_out: int, sigma0: float):
+        super().__init__()
+        self.n_in, self.n_out = n_in, n_out
+        bound = 1 / np.sqrt(n_in)
+        self.weight_mu = nn.Parameter(torch.empty(n_out, n_in).uniform_(-bound, bound))
+        self.bias_mu = nn.Parameter(torch.empty(n_out).uniform_(-bound, bound))
+        self.weight_sigma = nn.Parameter(torch.full((n_out, n_in), sigma0 * bound))
+        self.bias_sigma = nn.Parameter(torch.full((n_out,), sigma0 * bound))
+        self.register_buffer("eps_in", torch.zeros(n_in))
+        self.register_buffer("eps_out", torch.zeros(n_out))
+
+    @staticmethod
+    def _f(x):
+        return x.sign() * x.abs().sqrt()
+
+    def reset_noise(self, on: bool = True):
+        if on:
+            self.eps_in.copy_(self._f(torch.randn(self.n_in)))
+            self.eps_out.copy_(self._f(torch.randn(self.n_out)))
+        else:
+            self.eps_in.zero_()
+            self.eps_out.zero_()
+
+    def forward(self, x):
+        weight = self.weight_mu + self.weight_sigma * torch.outer(self.eps_out, self.eps_in)
+        return F.linear(x, weight, self.bias_mu + self.bias_sigma * self.eps_out)
+
+
+class QNetwork(nn.Module):
+    """Fig. 6.8: three convolutions over the stacked maps, then dueling noisy streams."""
+
+    def __init__(self, frames: int, view: int, hidden: int, sigma0: float):
+        super().__init__()
+        self.conv = nn.Sequential(
+            nn.Conv2d(4 * frames, 32, 3, 1, 1), nn.ReLU(),
+            nn.Conv2d(32, 64, 3, 2), nn.ReLU(),
+            nn.Conv2d(64, 64, 3, 2), nn.ReLU(), nn.Flatten())
+        with torch.no_grad():
+            n_conv = self.conv(torch.zeros(1, 4 * frames, view, view)).shape[1]
+        n_in = n_conv + 1 + frames * (5 + 8)  # battery, last actions, out-of-bounds
+        self.value = nn.ModuleList([NoisyLinear(n_in, hidden, sigma0), NoisyLinear(hidden, hidden, sigma0),
+                                    NoisyLinear(hidden, 1, sigma0)])
+        self.advantage = nn.ModuleList([NoisyLinear(n_in, hidden, sigma0), NoisyLinear(hidden, hidden, sigma0),
+                                        NoisyLinear(hidden, 4, sigma0)])
+
+    def reset_noise(self, on: bool = True):
+        for m in self.modules():
+            if isinstance(m, NoisyLinear):
+                m.reset_noise(on)
+
+    def forward(self, maps, extras):
+        x = torch.cat([self.conv(maps.float() / 255), extras], 1)
+
+        def stream(layers):
+            h = x
+            for layer in layers[:-1]:
+                h = F.relu(layer(h))
+            return layers[-1](h)
+
+        advantage = stream(self.advantage)
+        return stream(self.value) + advantage - advantage.mean(1, keepdim=True)  # eq. 6.17
+
+
+# ----------------------------------------------------------------------------- replay memory
+class SumTree:
+    """Priorities in a binary tree: sampling proportional to priority and updates in O(log n)."""
+
+    def __init__(self, capacity: int):
+        self.size = 1 << max(1, (capacity - 1).bit_length())
+        self.tree = np.zeros(2 * self.size)
+
+    def update(self, idx: np.ndarray, priority: np.ndarray) -> None:
+        node = np.asarray(idx, np.int64) + self.size
+        if node.size == 0:
+            return
+        self.tree[node] = priority
+        node = np.unique(node // 2)
+        while node[0] >= 1:
+            self.tree[node] = self.tree[2 * node] + self.tree[2 * node + 1]
+            if node[0] == 1:
+                break
+            node = np.unique(node // 2)
+
+    def total(self) -> float:
+        return float(self.tree[1])
+
+    def sample(self, n: int, rng: np.random.Generator) -> np.ndarray:
+        """n leaves, one from each of n equal slices of the total mass (stratified)."""
+        u = (np.arange(n) + rng.random(n)) * self.total() / n
+        node = np.ones(n, np.int64)
+        while node[0] < self.size:
+            left = self.tree[2 * node]
+            right = u > left
+            u = np.where(right, u - left, u)
+            node = 2 * node + right
+        return np.minimum(node - self.size, self.size - 1)
+
+
+class Replay:
+    """One compact frame per step in a ring segment per world, so stacks and next states are
+    neighbouring slots of the same world. A frame: the map bit-packed (841 bytes for 4x41x41)
+    plus the four compressed edge lines raw, out-of-bounds, last action and battery."""
+
+    def __init__(self, capacity: int, worlds: int, view: int, frames: int, n_step: int, gamma: float,
+                 alpha: float):
+        self.cap, self.worlds, self.V, self.k = capacity // worlds, worlds, view, frames
+        self.n_step, self.gamma, self.alpha = n_step, gamma, alpha
+        size = self.cap * worlds
+        self.bits = np.zeros((size, (4 * view * view + 7) // 8), np.uint8)
+        self.edges = np.zeros((size, 4, 4, view), np.uint8)  # rows 1, V-2 and cols 1, V-2
+        self.oob = np.zeros((size, 4, 2), np.float16)
+        self.last = np.zeros(size, np.int8)
+        self.battery = np.zeros(size, np.float16)
+        self.action = np.zeros(size, np.int8)
+        self.label = np.full(size, -1, np.int8)  # the heuristic's action here (-1: none)
+        self.reward = np.zeros(size, np.float32)
+        self.terminal = np.zeros(size, bool)  # the transition from this slot terminates
+        self.final = np.zeros(size, bool)  # the frame ends its episode (no action taken here)
+        self.age = np.zeros(size, np.int64)  # steps since the episode's first frame
+        self.pointer = np.zeros(worlds, np.int64)
+        self.filled = np.zeros(worlds, np.int64)
+        self.tree = SumTree(size)
+        self.max_priority = 1.0
+
+    def bytes_per_transition(self) -> int:
+        return sum(a.itemsize * int(np.prod(a.shape[1:])) for a in
+                   (self.bits, self.edges, self.oob, self.last, self.battery, self.action, self.label,
+                    self.reward, self.terminal, self.final, self.age)) + 16  # + sum-tree leaf
+
+    def add_frames(self, worlds: np.ndarray, obs: dict, age: np.ndarray, final: np.ndarray) -> np.ndarray:
+        """Write the current frame of each world; returns the slots written."""
+        slot = worlds * self.cap + self.pointer[worlds]
+        maps = obs["map"]
+        self.bits[slot] = np.packbits((maps > 0).reshape(len(slot), -1), axis=1)
+        V = self.V
+        self.edges[slot, :, 0] = maps[:, :, 1]
+        self.edges[slot, :, 1] = maps[:, :, V - 2]
+        self.edges[slot, :, 2] = maps[:, :, :, 1]
+        self.edges[slot, :, 3] = maps[:, :, :, V - 2]
+        self.oob[slot] = obs["out_of_bounds"]
+        self.last[slot] = obs["last_action"].argmax(1)
+        self.battery[slot] = obs["battery"][:, 0]
+        self.age[slot], self.final[slot] = age, final
+        self.tree.update(slot, np.zeros(len(slot)))  # no successor yet
+        ahead = worlds * self.cap + (self.pointer[worlds] + np.arange(1, self.k)[:, None]) % self.cap
+        self.tree.update(ahead.ravel(), np.zeros(ahead.size))  # their history was just overwritten
+        prev = worlds * self.cap + (self.pointer[worlds] - 1) % self.cap
+        done_prev = (self.filled[worlds] > 0) & ~self.final[prev] & (age > 0)
+        if done_prev.any():  # the previous frame's transition is complete now
+            self.tree.update(prev[done_prev], np.full(done_prev.sum(), self.max_priority ** self.alpha))
+        self.pointer[worlds] = (self.pointer[worlds] + 1) % self.cap
+        self.filled[worlds] = np.minimum(self.filled[worlds] + 1, self.cap)
+        return slot
+
+    def set_transition(self, slot: np.ndarray, action: np.ndarray, reward: np.ndarray, terminal: np.ndarray,
+                       label: np.ndarray | None = None):
+        self.action[slot], self.reward[slot], self.terminal[slot] = action, reward, terminal
+        self.label[slot] = -1 if label is None else np.where(label < 4, label, -1)  # WAIT is no move to learn
+
+    def _frames(self, slot: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Stacked maps (n, 4k, V, V) uint8 and extras (n, 1 + 13k) for frames ending at slot."""
+        V, k = self.V, self.k
+        base, pos = slot // self.cap * self.cap, slot % self.cap
+        back = np.minimum(self.age[slot][:, None], np.arange(k - 1, -1, -1))  # stay in the episode
+        frames = base[:, None] + (pos[:, None] - back) % self.cap  # (n, k) oldest first
+        flat = frames.ravel()
+        maps = np.unpackbits(self.bits[flat], axis=1, count=4 * V * V).reshape(-1, 4, V, V) * np.uint8(255)
+        maps[:, :, 1], maps[:, :, V - 2] = self.edges[flat, :, 0], self.edges[flat, :, 1]
+        maps[:, :, :, 1], maps[:, :, :, V - 2] = self.edges[flat, :, 2], self.edges[flat, :, 3]
+        last = np.eye(5, dtype=np.float32)[self.last[flat]]
+        oob = self.oob[flat].astype(np.float32).reshape(-1, 8) / 100  # counts, scaled
+        extras = np.concatenate([self.battery[slot].astype(np.float32)[:, None],
+                                 np.concatenate([last, oob], 1).reshape(len(slot), -1)], 1)
+        return maps.reshape(len(slot), 4 * k, V, V), extras
+
+    def sample(self, n: int, beta: float, rng: np.random.Generator):
+        slot = self.tree.sample(n, rng)
+        probs = self.tree.tree[slot + self.tree.size] / self.tree.total()
+        valid = (self.tree.tree[self.tree.size:] > 0).sum()
+        weights = (valid * np.maximum(probs, 1e-12)) ** -beta
+        ret = np.zeros(n, np.float32)
+        discount = np.ones(n, np.float32)
+        cur = slot.copy()
+        alive = np.ones(n, bool)
+        for i in range(self.n_step):  # n-step return, stopping at the episode's end
+            ret += alive * discount * self.reward[cur]
+            discount *= np.where(alive, self.gamma, 1.0)
+            alive &= ~self.terminal[cur]
+            if i == self.n_step - 1:  # `cur` is the last transition in the return
+                break
+            nxt = cur // self.cap * self.cap + (cur % self.cap + 1) % self.cap
+            stop = alive & (self.final[nxt] | (self.tree.tree[nxt + self.tree.size] == 0))
+            cur = np.where(alive & ~stop, nxt, cur)
+            alive &= ~stop
+            if not alive.any():
+                break
+        nxt = cur // self.cap * self.cap + (cur % self.cap + 1) % self.cap
+        bootstrap = (~self.terminal[cur]).astype(np.float32) * discount
+        obs = self._frames(slot)
+        next_obs = self._frames(nxt)
+        return slot, obs, self.action[slot].astype(np.int64), ret, next_obs, bootstrap, weights / weights.max()
+
+    def update_priorities(self, slot: np.ndarray, td: np.ndarray) -> None:
+        priority = np.abs(td) + 1e-6
+        self.max_priority = max(self.max_priority, float(priority.max()))
+        self.tree.update(slot, priority ** self.alpha)
+
+
+# ----------------------------------------------------------------------------- helpers
+def load_stages(args: Args) -> list[gridworld.EnvConfig]:
+    if args.reward_structure not in gridworld.STRUCTURES:
+        raise ValueError(f"--reward-structure must be one of {gridworld.STRUCTURES}, got {args.reward_structure!r}")
+    if not 0.0 <= args.gain <= (1.0 if args.reward_structure == "size_invariant" else float("inf")):
+        raise ValueError(f"--gain {args.gain}: needs 0 <= K (and K <= 1 for size_invariant, eq. 7.5)")
+    if args.stages:
+        stages = list(gridworld.load_config(args.stages).values())
+    else:
+        stages = [gridworld.EnvConfig.from_dict(s) for s in STAGES]
+    for s in stages:
+        if s.base_steps <= 0:
+            raise ValueError(f"stage {s.name}: base_steps must be > 0")
+    return stages
+
+
+def stage_config(stage: gridworld.EnvConfig, args: Args) -> gridworld.EnvConfig:
+    """The stage's settings with the run's reward structure and agent-count sampling."""
+    reward = gridworld.RewardParams(**{**asdict(stage.reward), "structure": args.reward_structure,
+                                       "gain": args.gain})
+    return stage.replace(reward=reward, number_agent_random=args.random_agents and stage.number_agents > 1)
+
+
+def to_torch(maps: np.ndarray, extras: np.ndarray):
+    return torch.from_numpy(np.ascontiguousarray(maps)), torch.from_numpy(extras)
+
+
+class Stacker:
+    """The last k frames of every agent of every world, for acting (the replay rebuilds its own)."""
+
+    def __init__(self, streams: int, k: int, view: int):
+        self.maps = np.zeros((streams, k, 4, view, view), np.uint8)
+        self.extra = np.zeros((streams, k, 13), np.float32)
+        self.battery = np.zeros((streams, 1), np.float32)
+
+    def push(self, obs: dict, restart: np.ndarray) -> None:
+        extra = np.concatenate([obs["last_action"], obs["out_of_bounds"].reshape(-1, 8) / 100], 1)
+        self.maps[:, :-1], self.extra[:, :-1] = self.maps[:, 1:], self.extra[:, 1:]
+        self.maps[:, -1], self.extra[:, -1] = obs["map"], extra
+        self.maps[restart] = obs["map"][restart][:, None]  # a new episode repeats its first frame
+        self.extra[restart] = extra[restart][:, None]
+        self.battery = obs["battery"]
+
+    def get(self):
+        n = len(self.maps)
+        return (self.maps.reshape(n, -1, *self.maps.shape[-2:]),
+                np.concatenate([self.battery, self.extra.reshape(n, -1)], 1))
+
+
+def observe(core: gridworld.GridWorldCore) -> dict:
+    """Every agent's observation, agent-major per world: stream b * N + i is agent i of world b."""
+    return {k: v.reshape(-1, *v.shape[2:]) for k, v in core.observe().items()}
+
+
+def pick(obs: dict, streams: np.ndarray) -> dict:
+    return {k: v[streams] for k, v in obs.items()}
+
+
+def stuck(since_new: np.ndarray, moved: np.ndarray, size: np.ndarray) -> np.ndarray:
+    """§6.4.2.4 conditions 3-4, per agent: no new cell in more than M steps (M = map edge), or
+    none and at most two cells of displacement in the last five steps."""
+    return (since_new > size) | ((since_new >= 5) & (moved <= 2))
+
+
+def large_margin_loss(q_all: torch.Tensor, label: torch.Tensor, margin: float) -> torch.Tensor:
+    """DQfD's J_E = max_a [Q(s, a) + l(a_E, a)] - Q(s, a_E), l = margin except at a_E, averaged
+    over the states with a label (label -1: none)."""
+    has = label >= 0
+    a_e = label.clamp(min=0)
+    beaten = (q_all + margin * (1 - F.one_hot(a_e, q_all.shape[1]))).max(1).values
+    return ((beaten - q_all.gather(1, a_e[:, None])[:, 0]) * has).sum() / has.sum().clamp(min=1)
+
+
+def evaluate_policy(q: QNetwork, scenarios: list, frames: int, sensor: str = "full", sensor_range: int = 3,
+                    sensor_failure: float = 0.0, heuristic: bool = True, random_ties: bool = False,
+                    action_loss: float = 0.0, faulty_at: float | None = None, seed: int = 0) -> dict:
+    """Decentralised execution (§7.4.1) of the deterministic policy (noise off) once on each
+    scenario, with as many agents as it has starts. Every agent acts on its own observation with
+    the same weights, so one batched forward pass equals N separate copies. With `heuristic` an
+    agent that is stuck (§6.4.2.4 conditions) hands over to the heuristic for as many new cells
+    as it has been stuck this episode, and every agent does once no more cells are left than
+    working agents. `action_loss`: chance an agent misses its action and stays; `faulty_at`:
+    the last agent freezes once this fraction of the points of interest is covered (§7.5.3.3).
+    Returns per-episode arrays: gridworld's metrics, `agents`, `truncated` and
+    `heuristic_steps` (agent-steps taken by the heuristic)."""
+    config = gridworld.EnvConfig(load_state=True, load_random=False, sensor=sensor, sensor_range=sensor_range,
+                                 sensor_failure=sensor_failure, number_agents=max(len(s.starts) for s in scenarios))
+    core = gridworld.GridWorldCore(config, len(scenarios), seed=seed)
+    core.configure(scenarios=scenarios)
+    core.reset()
+    B, N = core.B, core.N
+    rng = np.random.default_rng(seed)
+    stack = Stacker(B * N, frames, core.V)
+    stack.push(observe(core), np.ones(B * N, bool))
+    done, truncated, faulty = np.zeros(B, bool), np.zeros(B, bool), np.zeros(B, bool)
+    since_new, times_stuck, owed = (np.zeros((B, N), np.int64) for _ in range(3))
+    steps, used = np.zeros(B, np.int64), np.zeros(B, np.int64)  # each world's own, not the waits after its end
+    history = [core.agent_cells()] * 6  # cells at t-5 .. t
+    q.reset_noise(False)
+    with torch.no_grad():
+        while not done.all():
+            working = core.active & ~core.frozen & ~done[:, None]
+            acting = np.flatnonzero(working.ravel())  # finished worlds and absent agents cost nothing
+            maps, extras = stack.get()
+            action = np.full(B * N, gridworld.WAIT)
+            action[acting] = q(*to_torch(maps[acting], extras[acting])).argmax(1).numpy()
+            action = action.reshape(B, N)
+            if heuristic:
+                moved = np.abs(core.agent_cells() - history[0]).sum(-1)
+                now_stuck = stuck(since_new, moved, core.hw.max(1)[:, None]) & working & (owed == 0)
+                times_stuck += now_stuck
+                owed = np.where(now_stuck, times_stuck, owed)
+                endgame = (core.remaining <= working.sum(1))[:, None]
+                fallback = ((owed > 0) | endgame) & working
+                if fallback.any():
+                    action = np.where(fallback, core.heuristic_actions(random_ties), action)
+                used += fallback.sum(1)
+            if action_loss:
+                action = np.where(rng.random((B, N)) < action_loss, gridworld.WAIT, action)
+            ev = core.step(np.where(done[:, None], gridworld.WAIT, action))
+            steps += ~done
+            since_new = np.where(ev["new"], 0, since_new + 1)
+            owed = np.maximum(owed - ev["new"], 0)
+            history = history[1:] + [core.agent_cells()]
+            truncated |= ev["truncated"] & ~done
+            done |= ev["terminated"] | ev["truncated"]
+            if faulty_at is not None:
+                due = np.flatnonzero(~faulty & ~done & (core.new_cells >= faulty_at * core.n_poi_start))
+                core.freeze(due, core.active[due].sum(1) - 1)
+                faulty[due] = True
+            stack.push(observe(core), np.zeros(B * N, bool))
+    q.reset_noise(True)
+    m = core.metrics()
+    return {**m, "steps": steps, "time_save": steps / np.maximum(m["n_poi_start"], 1),
+            "rho": steps / np.maximum(core.n_free, 1), "agents": core.active.sum(1),
+            "truncated": truncated, "heuristic_steps": used}
+
+
+def save_checkpoint(path: str, state: dict) -> None:
+    os.makedirs(os.path.dirname(path) or ".", exist_ok=True)
+    tmp = path + ".tmp"
+    torch.save(state, tmp)
+    os.replace(tmp, path)  # atomic: a crash never leaves half a checkpoint
+
+
+def export(q: QNetwork, args: Args, info: dict) -> None:
+    """Deployable weights: the noisy layers' means only, fp16, plus how they were trained."""
+    weights = {k: v.half() for k, v in q.state_dict().items() if "sigma" not in k and "eps" not in k}
+    os.makedirs(os.path.dirname(args.export) or ".", exist_ok=True)
+    save_checkpoint(args.export, {"weights": weights, "frames": args.frame_stack, "hidden": args.hidden})
+    with open(os.path.splitext(args.export)[0] + ".json", "w") as f:
+        json.dump({"args": asdict(args), **info}, f, indent=1)
+
+
+def load_policy(path: str) -> QNetwork:
+    """A deployable export (or a training checkpoint) as a network with noise off."""
+    if not os.path.exists(path):
+        raise ValueError(f"{path}: no such checkpoint")
+    try:
+        blob = torch.load(path, map_location="cpu", weights_only=False)
+        if not isinstance(blob, dict):
+            raise TypeError(f"a {type(blob).__name__}, not a dict")
+        frames = blob.get("frames") or blob["args"]["frame_stack"]
+        hidden = blob.get("hidden") or blob["args"]["hidden"]
+        weights = blob.get("weights") or blob["model"]
+        q = QNetwork(frames, 41, hidden, 0.0)
+        missing, unexpected = q.load_state_dict({k: v.float() for k, v in weights.items()}, strict=False)
+    except Exception as e:  # any unreadable file is a one-line error
+        raise ValueError(f"{path}: not a rainbow_cpp / rainbow_marl model "
+                         f"({(str(e).splitlines() or [type(e).__name__])[0]})") from None
+    if unexpected or any("sigma" not in k and "eps" not in k for k in missing):
+        raise ValueError(f"{path}: weights do not match this network")
+    q.reset_noise(False)
+    return q.eval()
+
+
+# ----------------------------------------------------------------------------- training
+def main(args: Args) -> None:
+    stages = load_stages(args)
+    if args.num_envs < 1 or args.buffer_size < 64 * args.num_envs * max(s.number_agents for s in stages):
+        raise ValueError("need num_envs >= 1 and buffer_size >= 64 * num_envs * the most agents of a stage")
+    random.seed(args.seed)
+    torch.manual_seed(args.seed)
+    rng = np.random.default_rng(args.seed)
+    run_dir = os.path.join("runs", args.run_name)
+    checkpoint = os.path.join(run_dir, "checkpoint.pt")
+    q = QNetwork(args.frame_stack, 41, args.hidden, args.sigma0)
+    target = QNetwork(args.frame_stack, 41, args.hidden, args.sigma0)
+    optimizer = torch.optim.Adam(q.parameters(), lr=args.learning_rate, eps=args.adam_eps,
+                                 fused=True)  # fused: ~7x faster than the per-tensor loop on CPU
+    global_step, stage_index, wall = 0, 0, 0.0
+    if args.resume:
+        if not os.path.exists(checkpoint):
+            raise ValueError(f"{checkpoint}: nothing to resume")
+        state = torch.load(checkpoint, map_location="cpu", weights_only=False)
+        q.load_state_dict(state["model"])
+        optimizer.load_state_dict(state["optimizer"])
+        global_step, stage_index, wall = state["global_step"], state["stage"], state["wall"]
+        rng.bit_generator.state = state["numpy_rng"]
+        torch.set_rng_state(state["torch_rng"])
+    elif args.init_from:  # transfer from the single-agent model (§7.4.2.2)
+        pretrained = load_policy(args.init_from)
+        if pretrained.value[0].n_out != args.hidden or pretrained.conv[0].in_channels != 4 * args.frame_stack:
+            raise ValueError(f"{args.init_from}: hidden {pretrained.value[0].n_out}, "
+                             f"{pretrained.conv[0].in_channels // 4} frames; give --hidden and --frame-stack to match")
+        q.load_state_dict(pretrained.state_dict() | {
+            k: v for k, v in q.state_dict().items() if "sigma" in k or "eps" in k})
+    target.load_state_dict(q.state_dict())
+    ends = np.cumsum([max(1, int(s.base_steps * args.stage_steps_scale)) for s in stages])
+    total = int(min(ends[-1], args.total_steps or ends[-1]))
+    B = args.num_envs
+    from torch.utils.tensorboard import SummaryWriter
+    writer = SummaryWriter(run_dir)
+    writer.add_text("hyperparameters", "|param|value|\n|-|-|\n" + "\n".join(f"|{k}|{v}|" for k, v in asdict(args).items()))
+    eval_path = os.path.join(os.path.dirname(os.path.abspath(__file__)), "maps", "marl_eval.npz")
+    eval_set, eval_sizes = gridworld.load_dataset(eval_path), np.load(eval_path)["size"]
+
+    core = None
+    updates_due, last_log, last_loss_log, t0 = 0.0, global_step, global_step, time.time() - wall
+    stop = {"now": False}
+    previous_handler = signal.signal(signal.SIGINT, lambda *_: stop.update(now=True))  # Ctrl-C: save, exit
+
+    def save():
+        save_checkpoint(checkpoint, {"model": q.state_dict(), "optimizer": optimizer.state_dict(),
+                                     "global_step": global_step, "stage": stage_index, "wall": time.time() - t0,
+                                     "args": asdict(args), "numpy_rng": rng.bit_generator.state,
+                                     "torch_rng": torch.get_rng_state()})
+        export(q, args, {"global_step": global_step, "stage": stages[stage_index].name,
+                         "wall_seconds": round(time.time() - t0), "torch_threads": torch.get_num_threads()})
+
+    while global_step < total and not stop["now"]:
+        if core is not None and global_step >= ends[stage_index]:  # the next curriculum stage
+            stage_index += 1
+            if stages[stage_index].number_agents == core.N:  # picked up at each world's next reset
+                core.configure(stage_config(stages[stage_index], args))
+        if core is None or stages[stage_index].number_agents != core.N:  # new worlds and memory for N agents
+            core = gridworld.GridWorldCore(stage_config(stages[stage_index], args), B, seed=args.seed + global_step)
+            N = core.N
+            S = B * N  # streams: agent i of world b is stream b * N + i
+            replay = Replay(args.buffer_size, S, core.V, args.frame_stack, args.n_step, args.gamma, args.alpha)
+            replay_born = global_step  # a new (or resumed) memory refills for learning_starts steps
+            print(f"{N} agents: replay {replay.bytes_per_transition()} bytes per transition, "
+                  f"{replay.bytes_per_transition() * args.buffer_size / 2**30:.2f} GiB for {args.buffer_size:,}")
+            core.reset()
+            obs = observe(core)
+            stack = Stacker(S, args.frame_stack, core.V)
+            stack.push(obs, np.ones(S, bool))
+            slot = np.zeros(S, np.int64)
+            live = np.flatnonzero(core.active.ravel())
+            slot[live] = replay.add_frames(live, pick(obs, live), np.zeros(len(live), np.int64),
+                                           np.zeros(len(live), bool))
+            age = np.zeros(B, np.int64)
+            since_new = np.zeros((B, N), np.int64)
+            history = [core.agent_cells()] * 6  # cells at t-5 .. t
+            demonstrations_end = max(args.learning_starts, args.demonstration_steps)
+            teacher = np.full(B, global_step < demonstrations_end)  # §6.4.2.4 condition 1
+            continued = np.zeros(B, bool)  # truncated and continued by the heuristic (condition 2)
+            returns = np.zeros((B, N))
+            starts = core.snapshot()
+            challenging: list = []
+
+        live = np.flatnonzero(core.active.ravel())  # absent agents neither act nor store transitions
+        action = np.full(S, gridworld.WAIT)
+        with torch.no_grad():
+            maps, extras = stack.get()
+            action[live] = q(*to_torch(maps[live], extras[live])).argmax(1).numpy()
+        moved = np.abs(core.agent_cells() - history[0]).sum(-1)
+        endgame = (core.remaining <= core.active.sum(1))[:, None]  # no more cells than agents: all hand over
+        teach = ((teacher | continued)[:, None] | endgame | stuck(since_new, moved, core.hw.max(1)[:, None]))
+        teach = (teach & (rng.random((B, N)) < args.imitation)).ravel()
+        label = core.heuristic_actions(args.heuristic_random_ties).ravel() if teach.any() or args.margin_loss else None
+        if teach.any():  # an agent the heuristic leaves without a target (WAIT) keeps its own move
+            action = np.where(teach & (label < gridworld.WAIT), label, action)
+        ev = core.step(action.reshape(B, N))
+        terminated, truncated = ev["terminated"], ev["truncated"]
+        replay.set_transition(slot[live], action[live], ev["reward"].ravel()[live],
+                              np.repeat(terminated | (truncated & ~args.peb), N)[live],
+                              label[live] if args.margin_loss else None)
+        returns += ev["reward"]
+        since_new = np.where(ev["new"], 0, since_new + 1)
+        history = history[1:] + [core.agent_cells()]
+        global_step += B
+        carry_on = truncated & args.partial_reset
+        if carry_on.any():  # §6.4.2.2: a new battery, the heuristic finishes the episode
+            core.recharge(np.flatnonzero(carry_on))
+            continued |= carry_on
+        ended = terminated | (truncated & ~args.partial_reset)
+        obs = observe(core)
+        slot[live] = replay.add_frames(live, pick(obs, live), np.repeat(age + 1, N)[live], np.repeat(ended, N)[live])
+        age += 1
+        restart = np.zeros(S, bool)
+        if ended.any():
+            w = np.flatnonzero(ended)
+            m = core.metrics()
+            for i in w:
+                writer.add_scalar("charts/episodic_return", returns[i][core.active[i]].mean(), global_step)
+                writer.add_scalar("charts/episodic_length", m["steps"][i], global_step)
+                writer.add_scalar("charts/time_save", m["time_save"][i], global_step)
+                writer.add_scalar("charts/agents", core.active[i].sum(), global_step)
+                if continued[i] and args.challenging > 0:  # §6.4.2.3: keep what the agents failed
+                    challenging = (challenging + [starts[i]])[-args.challenging_size:]
+            replay_old = w[rng.random(len(w)) < args.challenging] if challenging else w[:0]
+            picks = [challenging.pop(int(rng.integers(len(challenging)))) for _ in replay_old[:len(challenging)]]
+            replay_old = replay_old[:len(picks)]
+            fresh = np.setdiff1d(w, replay_old)
+            if len(picks):
+                core.reset(replay_old, scenarios=picks)
+            core.reset(fresh)
+            for i, s in zip(w, core.snapshot(w)):
+                starts[i] = s
+            obs = observe(core)
+            restart = np.zeros((B, N), bool)
+            restart[w] = True
+            restart = restart.ravel()
+            new = np.flatnonzero(restart & core.active.ravel())
+            slot[new] = replay.add_frames(new, pick(obs, new), np.zeros(len(new), np.int64), np.zeros(len(new), bool))
+            age[w] = since_new[w] = returns[w] = 0
+            continued[w] = False
+            teacher[w] = global_step < demonstrations_end
+            for h in history:
+                h[w] = core.agent_cells()[w]
+        stack.push(obs, restart)
+
+        if global_step - replay_born > args.learning_starts:
+            updates_due += B * args.replay_ratio / args.batch_size
+        while updates_due >= 1:
+            updates_due -= 1
+            beta = args.beta_start + (1 - args.beta_start) * min(1.0, global_step / total)
+            idx, (m_, e_), a_, ret, (nm, ne), boot, weight = replay.sample(args.batch_size, beta, rng)
+            m_, e_, nm, ne = (torch.from_numpy(np.ascontiguousarray(x)) for x in (m_, e_, nm, ne))
+            with torch.no_grad():  # double DQN: the online net picks, the target net values
+                best = q(nm, ne).argmax(1, keepdim=True)
+                y = torch.from_numpy(ret) + torch.from_numpy(boot) * target(nm, ne).gather(1, best)[:, 0]
+            q_all = q(m_, e_)
+            q_sa = q_all.gather(1, torch.from_numpy(a_)[:, None])[:, 0]
+            loss = (torch.from_numpy(weight.astype(np.float32)) * F.smooth_l1_loss(q_sa, y, reduction="none")).mean()
+            if args.margin_loss:
+                margin_loss = large_margin_loss(q_all, torch.from_numpy(replay.label[idx].astype(np.int64)),
+                                                args.margin)
+                loss = loss + args.margin_loss * margin_loss
+            optimizer.zero_grad()
+            loss.backward()
+            nn.utils.clip_grad_norm_(q.parameters(), args.max_grad_norm)
+            optimizer.step()
+            replay.update_priorities(idx, (y - q_sa).detach().numpy())
+            with torch.no_grad():  # eq. 6.19
+                for p, tp in zip(q.parameters(), target.parameters()):
+                    tp.lerp_(p, args.tau)
+            q.reset_noise()
+            target.reset_noise()
+            if global_step - last_loss_log >= 1000:  # the first update after each 1000 steps
+                last_loss_log = global_step
+                writer.add_scalar("losses/td_loss", loss.item(), global_step)
+                writer.add_scalar("losses/q_values", q_sa.mean().item(), global_step)
+                if args.margin_loss:
+                    writer.add_scalar("losses/margin_loss", margin_loss.item(), global_step)
+        if global_step - last_log >= 1000:
+            sps = int(global_step / max(time.time() - t0, 1e-9))
+            writer.add_scalar("charts/SPS", sps, global_step)
+            print(f"step {global_step:,}/{total:,} stage {stages[stage_index].name} SPS {sps} "
+                  f"({sps * core.active.sum() // B} agent transitions/s)", flush=True)
+            last_log = global_step
+        if args.eval_every and global_step % args.eval_every < B:
+            stage = stages[stage_index]
+            pool = [gridworld.Scenario(s.obstacles, s.starts[:N], s.covered)
+                    for s, z in zip(eval_set, eval_sizes) if z <= max(stage.size, 5)]  # marl_eval starts at 5
+            m = evaluate_policy(q, pool[::max(1, len(pool) // args.eval_maps)][:args.eval_maps], args.frame_stack,
+                                random_ties=args.heuristic_random_ties)
+            result = dict(time_save=float(m["time_save"].mean()), completion=float(m["completed"].mean()),
+                          heuristic_share=float((m["heuristic_steps"] / np.maximum(m["steps"] * N, 1)).mean()))
+            for k, v in result.items():
+                writer.add_scalar(f"eval/{k}", v, global_step)
+            print(f"eval at {global_step:,} ({N} agents): {result}", flush=True)
+        if args.save_every and global_step % args.save_every < B:
+            save()
+    save()
+    writer.close()
+    signal.signal(signal.SIGINT, previous_handler)
+    print(f"saved {checkpoint} and {args.export} at step {global_step:,}")
+
+
+if __name__ == "__main__":
+    try:
+        main(tyro.cli(Args))
+    except ValueError as e:
+        raise SystemExit(f"error: {e}")
