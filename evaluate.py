@@ -147,13 +147,18 @@ def run_rainbow(args: Args, episodes: list[tuple[str, Scenario]]) -> list[dict]:
         raise ValueError("--faulty-agent-at and --action-loss need several agents (the marl policy)")
     q = rainbow_cpp.load_policy(args.checkpoint or DEFAULT_CHECKPOINT["rainbow"])
     frames = q.conv[0].in_channels // 4
+    return _rollout_rows(episodes, lambda scenarios, i: rainbow_cpp.evaluate_policy(
+        q, scenarios, frames, args.sensor, args.sensor_range, args.sensor_failure, args.heuristic))
+
+
+def _rollout_rows(episodes: list[tuple[str, Scenario]], rollout) -> list[dict]:
+    """A learned agent's batched `rollout(scenarios, first index)` on 64 worlds at a time; one
+    row per episode."""
     rows = []
-    for i in range(0, len(episodes), 64):  # 64 worlds per batched rollout
+    for i in range(0, len(episodes), 64):
         part = episodes[i:i + 64]
-        m = rainbow_cpp.evaluate_policy(q, [s for _, s in part], frames, args.sensor, args.sensor_range,
-                                        args.sensor_failure, args.heuristic)
-        for j, (name, s) in enumerate(part):
-            rows.append(_row(name, s, {k: v[j].item() for k, v in m.items()}))
+        m = rollout([s for _, s in part], i)
+        rows += [_row(name, s, {k: v[j].item() for k, v in m.items()}) for j, (name, s) in enumerate(part)]
     return rows
 
 
@@ -167,15 +172,9 @@ def run_marl(args: Args, episodes: list[tuple[str, Scenario]]) -> list[dict]:
         raise ValueError(f"--action-loss must be in [0, 1), got {args.action_loss}")
     q = rainbow_marl.load_policy(args.checkpoint or DEFAULT_CHECKPOINT["marl"])
     frames = q.conv[0].in_channels // 4
-    rows = []
-    for i in range(0, len(episodes), 64):  # 64 worlds per batched rollout
-        part = episodes[i:i + 64]
-        m = rainbow_marl.evaluate_policy(q, [s for _, s in part], frames, args.sensor, args.sensor_range,
-                                         args.sensor_failure, args.heuristic, action_loss=args.action_loss,
-                                         faulty_at=args.faulty_agent_at, seed=args.seed + i)
-        for j, (name, s) in enumerate(part):
-            rows.append(_row(name, s, {k: v[j].item() for k, v in m.items()}))
-    return rows
+    return _rollout_rows(episodes, lambda scenarios, i: rainbow_marl.evaluate_policy(
+        q, scenarios, frames, args.sensor, args.sensor_range, args.sensor_failure, args.heuristic,
+        action_loss=args.action_loss, faulty_at=args.faulty_agent_at, seed=args.seed + i))
 
 
 def run_tabular(args: Args, episodes: list[tuple[str, Scenario]]) -> list[dict]:
@@ -386,7 +385,7 @@ def marl_sections(mr: dict, marl: dict, out: str, table) -> list[str]:
     several = [n for n in agents if int(n) > 1]
     below = [n for n in several if mr["agents"][n]["time_save"] < mr["agents"][n]["greedy"]]
     rewards = []
-    for name in ("pretrained", "competitive", "cooperative", "size_invariant"):
+    for name in ("greedy", "pretrained", "competitive", "cooperative", "size_invariant"):
         path = os.path.join(out, "marl_rewards", name, "summary.json")
         if os.path.exists(path):
             with open(path) as f:
@@ -397,7 +396,8 @@ def marl_sections(mr: dict, marl: dict, out: str, table) -> list[str]:
         rewards = ["", "Reward structures (§7.5.2, Figs. 7.7-7.8) at N = 2, K = 0.25: 15,000 steps each from "
                    "`models/rainbow_cpp.pt` with the dissertation's recipe (no margin loss), stage file "
                    "`models/rainbow_marl_reward_stages.yaml`; mean $t_{sf}$ on `marl_eval` sizes 10-24, every 10th map "
-                   "(README for the commands; `pretrained` is the single-agent model before any multi-agent training):",
+                   "(README for the commands; `pretrained` is the single-agent model before any multi-agent training, "
+                   "`greedy` the planner with claims on the same maps):",
                    "", table(["reward", "maps", "mean t_sf", "completed"], rewards)]
     return [
         f"Model `models/rainbow_marl.pt` (hidden {m['args']['hidden']}, from `{m['args']['init_from']}`): "

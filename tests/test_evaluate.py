@@ -99,15 +99,17 @@ def test_report_redraws_from_saved_results(tmp_path):
     import shutil
     shutil.copy(ROOT / "results" / "classical_cpp.json", tmp_path / "classical_cpp.json")
     shutil.copytree(ROOT / "results" / "tabular", tmp_path / "tabular")  # saved, so nothing re-runs
-    if (ROOT / "results" / "rainbow_cpp.json").exists():
-        shutil.copy(ROOT / "results" / "rainbow_cpp.json", tmp_path / "rainbow_cpp.json")
+    for saved in ("rainbow_cpp.json", "rainbow_marl.json"):
+        if (ROOT / "results" / saved).exists():
+            shutil.copy(ROOT / "results" / saved, tmp_path / saved)
     evaluate.report(evaluate.ReportArgs(out=str(tmp_path), reuse=True))
     text = (tmp_path / "RESULTS.md").read_text()
     for figure in ("planners_overlap_by_size.png", "planners_external.png", "marl_baselines.png"):
         assert (tmp_path / figure).stat().st_size > 10_000 and figure in text
     saved = json.loads((tmp_path / "classical_cpp.json").read_text())
     assert f"| lkh | {saved['cpp_eval']['lkh']['5-10']:.3f} |" in text
-    learned = 1 + 3 * (not (ROOT / "models" / "rainbow_cpp.pt").exists())  # marl, and rainbow's 3 sections
+    learned = ((not (ROOT / "models" / "rainbow_marl.pt").exists())
+               + 3 * (not (ROOT / "models" / "rainbow_cpp.pt").exists()))  # marl's section, rainbow's 3
     assert text.count("*Not trained yet:*") == learned  # learned agents without a model say so
 
 
