@@ -10,7 +10,9 @@ and it rejects illegal or incomplete paths.
     python classical_cpp.py --planner greedy --dataset maps/cpp_eval.npz --limit 200
     python classical_cpp.py --planner partition --dataset maps/marl_eval.npz --agents 5
 
-Single agent: greedy (the navigation heuristic run to completion), boustrophedon (BA*-style
+Single agent: greedy (the navigation heuristic run to completion), greedy-dead-ends (the same
+with Warnsdorff's tie-break: of the nearest uncovered cells, the one with the fewest uncovered
+neighbours first; also for several agents), boustrophedon (BA*-style
 back-and-forth with shortest-path repositioning), spiral-stc (Spiral-STC on 2x2 blocks, partly
 blocked blocks kept), wavefront (Zelinsky's distance transform), lkh (the TSP over the
 shortest-path metric closure solved by LKH-3 through elkai: the near-optimal reference).
@@ -303,10 +305,11 @@ def lkh(scenario: Scenario, time_limit: float = LKH_TIME_LIMIT, runs: int = 1) -
 
 
 # ----------------------------------------------------------------------------- greedy (batched)
-def greedy_many(scenarios: list[Scenario]) -> list[list[np.ndarray]]:
+def greedy_many(scenarios: list[Scenario], dead_ends_first: bool = False) -> list[list[np.ndarray]]:
     """The navigation heuristic run to completion in gridworld itself, for many maps at once:
-    nearest known point of interest, first in row-major order on ties; several agents claim
-    distinct targets (the nearest agent-target pair first)."""
+    nearest known point of interest, first in row-major order on ties (with dead_ends_first,
+    the one with the fewest uncovered neighbours first); several agents claim distinct targets
+    (the nearest agent-target pair first)."""
     if not scenarios:
         return []
     by_agents: dict[int, list[int]] = {}
@@ -323,7 +326,7 @@ def greedy_many(scenarios: list[Scenario]) -> list[list[np.ndarray]]:
         done = core.remaining == 0
         end = np.where(done, 0, -1)
         while not done.all():
-            actions = np.where(done[:, None], gridworld.WAIT, core.heuristic_actions(random_ties=False))
+            actions = np.where(done[:, None], gridworld.WAIT, core.heuristic_actions(False, dead_ends_first))
             core.step(actions)
             trace.append(core.agent_cells())
             finished = ~done & (core.remaining == 0)
@@ -337,6 +340,10 @@ def greedy_many(scenarios: list[Scenario]) -> list[list[np.ndarray]]:
 
 def greedy(scenario: Scenario) -> list[np.ndarray]:
     return greedy_many([scenario])[0]
+
+
+def greedy_dead_ends(scenario: Scenario) -> list[np.ndarray]:
+    return greedy_many([scenario], dead_ends_first=True)[0]
 
 
 # ----------------------------------------------------------------------------- several agents
@@ -389,7 +396,7 @@ def lower_bound(scenario: Scenario) -> int:
     return math.ceil((~scenario.obstacles & ~covered).sum() / len(scenario.starts))
 
 
-PLANNERS = {"greedy": greedy, "boustrophedon": boustrophedon, "spiral-stc": spiral_stc,
+PLANNERS = {"greedy": greedy, "greedy-dead-ends": greedy_dead_ends, "boustrophedon": boustrophedon, "spiral-stc": spiral_stc,
             "wavefront": wavefront, "lkh": lkh, "partition": partition}
 SINGLE_AGENT = {"boustrophedon", "spiral-stc", "wavefront", "lkh"}
 
@@ -435,9 +442,9 @@ def plan(name: str, scenarios: list[Scenario]) -> list[list[np.ndarray]]:
     if name not in PLANNERS:
         raise ValueError(f"unknown planner {name!r}; choose from {sorted(PLANNERS)}")
     if name in SINGLE_AGENT and any(len(s.starts) != 1 for s in scenarios):
-        raise ValueError(f"{name} is a single-agent planner; use greedy or partition for several")
-    if name == "greedy":
-        return greedy_many(scenarios)
+        raise ValueError(f"{name} is a single-agent planner; use greedy, greedy-dead-ends or partition for several")
+    if name in ("greedy", "greedy-dead-ends"):
+        return greedy_many(scenarios, dead_ends_first=name == "greedy-dead-ends")
     return [PLANNERS[name](s) for s in scenarios]
 
 
@@ -445,7 +452,7 @@ def plan(name: str, scenarios: list[Scenario]) -> list[list[np.ndarray]]:
 @dataclass
 class Args:
     planner: str = "greedy"
-    """one of greedy, boustrophedon, spiral-stc, wavefront, lkh, partition"""
+    """one of greedy, greedy-dead-ends, boustrophedon, spiral-stc, wavefront, lkh, partition"""
     maps: tuple[str, ...] = ()
     """MovingAI .map or ASCII map files (starts from the file, else drawn with --seed)"""
     dataset: str | None = None

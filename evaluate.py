@@ -8,7 +8,7 @@ Writes DIR/episodes.csv (map, size, n_free, agents, start, steps, revisits, over
 completed, truncated, heuristic_steps) and DIR/summary.json (mean, median, std, min, max of
 overlap, time-save factor and steps, completion rate; overall and by map size). Every metric is
 counted by gridworld's own environment. Policies: the planners of classical_cpp.py (greedy,
-boustrophedon, spiral-stc, wavefront, lkh, partition) and the chapter-6 agent `rainbow`
+greedy-dead-ends, boustrophedon, spiral-stc, wavefront, lkh, partition) and the chapter-6 agent `rainbow`
 (rainbow_cpp.py; --checkpoint, default models/rainbow_cpp.pt, noise off, heuristic fallback
 unless --no-heuristic), the chapter-7 agents `marl` (rainbow_marl.py; default
 models/rainbow_marl.pt, decentralised: every agent acts on its own observation; --action-loss,
@@ -45,8 +45,8 @@ COLUMNS = ["map", "size", "n_free", "agents", "start", "steps", "revisits", "ove
 @dataclass
 class Args:
     policy: str = "greedy"
-    """a classical_cpp planner (greedy, boustrophedon, spiral-stc, wavefront, lkh, partition) or a
-    learned agent (rainbow, marl, tabular)"""
+    """a classical_cpp planner (greedy, greedy-dead-ends, boustrophedon, spiral-stc, wavefront, lkh,
+    partition) or a learned agent (rainbow, marl, tabular)"""
     checkpoint: str | None = None
     """weights / table of a learned agent"""
     maps: tuple[str, ...] = ()
@@ -73,6 +73,10 @@ class Args:
     """marl: chance an agent misses its action at a step and stays where it is"""
     heuristic: bool = True
     """learned policies: hand over to the navigation heuristic when stuck (§6.5.2.1)"""
+    heuristic_dead_ends: bool = True
+    """rainbow, marl: the fallback heuristic takes the nearest cell with the fewest uncovered
+    neighbours first (as the shipped models were taught); --no-heuristic-dead-ends: the
+    dissertation's nearest-cell heuristic"""
     limit: int = 0
     """evaluate only the first LIMIT scenarios (0: all)"""
     min_size: int = 0
@@ -148,7 +152,8 @@ def run_rainbow(args: Args, episodes: list[tuple[str, Scenario]]) -> list[dict]:
     q = rainbow_cpp.load_policy(args.checkpoint or DEFAULT_CHECKPOINT["rainbow"])
     frames = q.conv[0].in_channels // 4
     return _rollout_rows(episodes, lambda scenarios, i: rainbow_cpp.evaluate_policy(
-        q, scenarios, frames, args.sensor, args.sensor_range, args.sensor_failure, args.heuristic))
+        q, scenarios, frames, args.sensor, args.sensor_range, args.sensor_failure, args.heuristic,
+        dead_ends_first=args.heuristic_dead_ends))
 
 
 def _rollout_rows(episodes: list[tuple[str, Scenario]], rollout) -> list[dict]:
@@ -174,7 +179,8 @@ def run_marl(args: Args, episodes: list[tuple[str, Scenario]]) -> list[dict]:
     frames = q.conv[0].in_channels // 4
     return _rollout_rows(episodes, lambda scenarios, i: rainbow_marl.evaluate_policy(
         q, scenarios, frames, args.sensor, args.sensor_range, args.sensor_failure, args.heuristic,
-        action_loss=args.action_loss, faulty_at=args.faulty_agent_at, seed=args.seed + i))
+        action_loss=args.action_loss, faulty_at=args.faulty_agent_at, seed=args.seed + i,
+        dead_ends_first=args.heuristic_dead_ends))
 
 
 def run_tabular(args: Args, episodes: list[tuple[str, Scenario]]) -> list[dict]:
@@ -310,6 +316,7 @@ def rainbow_results(out: str, per_size: int, p2p_maps: int, model: str) -> dict:
         result[key] = by_size(rows)
         print(key, json.dumps(result[key]), flush=True)
     result["greedy"] = by_size(run_planner("greedy", episodes))
+    result["greedy_dead_ends"] = by_size(run_planner("greedy-dead-ends", episodes))
     p2p = scenarios_from(Args(dataset=os.path.join(root, "maps", "p2p_eval.npz"), limit=p2p_maps))
     shortest = [r["steps"] for r in run_planner("greedy", p2p)]  # one target: greedy walks a shortest path
     rows = run_rainbow(Args(policy="rainbow", checkpoint=model), p2p)
@@ -341,10 +348,11 @@ def marl_results(out: str, model: str, every: int = 10) -> dict:
         episodes = [(f"marl_eval.npz[{z}x{z}]", s) for s, z in zip(scenarios, sizes)]
         rows = run_marl(Args(policy="marl", checkpoint=model, agents=n), episodes)
         greedy = run_planner("greedy", episodes)
+        dead_ends = run_planner("greedy-dead-ends", episodes)
         result["agents"][str(n)] = {
             "maps": len(rows), "time_save": mean(rows, "time_save"), "completion": mean(rows, "completed"),
             "heuristic_share": round(float(np.mean([r["heuristic_steps"] / (n * r["steps"]) for r in rows])), 4),
-            "greedy": mean(greedy, "time_save"),
+            "greedy": mean(greedy, "time_save"), "greedy_dead_ends": mean(dead_ends, "time_save"),
             "by_size": {str(z): mean([r for r, k in zip(rows, sizes) if k == z], "time_save") for z in np.unique(sizes)}}
         if n in (2, 5, 10):
             faulty = run_marl(Args(policy="marl", checkpoint=model, agents=n, faulty_agent_at=0.5), episodes)
@@ -363,6 +371,8 @@ def marl_sections(mr: dict, marl: dict, out: str, table) -> list[str]:
     fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4))
     left.plot(n_axis, [mr["agents"][n]["time_save"] for n in agents], marker="o", label="rainbow_marl + heuristic")
     left.plot(n_axis, [mr["agents"][n]["greedy"] for n in agents], marker=".", label="greedy planner (claims)")
+    left.plot(n_axis, [mr["agents"][n]["greedy_dead_ends"] for n in agents], marker=".",
+              label="greedy-dead-ends planner (claims)")
     base = sorted(marl, key=int)
     left.plot([int(n) for n in base], [marl[n]["partition"] for n in base], "s", label="partition planner")
     left.plot(n_axis, [1 / n for n in n_axis], "k--", label="1/N")
@@ -409,9 +419,10 @@ def marl_sections(mr: dict, marl: dict, out: str, table) -> list[str]:
         f"{len(below)} of the {len(several)} agent counts 2-{several[-1]}.", "",
         f"`marl_eval` sizes 10-30, every {mr['every']}th layout, the first N stored starts (the N + 1-agent episode "
         "adds one agent to the N-agent one); heuristic share = fraction of agent-steps the fallback took:", "",
-        table(["N", "maps", "rainbow_marl", "greedy (claims)", "1/N", "completed", "heuristic share"],
+        table(["N", "maps", "rainbow_marl", "greedy (claims)", "greedy-dead-ends (claims)", "1/N", "completed",
+               "heuristic share"],
               [[n, str(mr["agents"][n]["maps"]), f"{mr['agents'][n]['time_save']:.3f}",
-                f"{mr['agents'][n]['greedy']:.3f}", f"{1 / int(n):.3f}",
+                f"{mr['agents'][n]['greedy']:.3f}", f"{mr['agents'][n]['greedy_dead_ends']:.3f}", f"{1 / int(n):.3f}",
                 f"{100 * mr['agents'][n]['completion']:.0f}%", f"{mr['agents'][n]['heuristic_share']:.2f}"]
                for n in agents]), "",
         "![rainbow_marl time-save factor](rainbow_marl_time_save.png)", "",
@@ -436,7 +447,8 @@ def rainbow_sections(rb: dict, cpp: dict, ext: dict, out: str, table) -> tuple[l
     fig, ax = plt.subplots(figsize=(7, 4))
     for key, stat, label in (("full", "overlap", "rainbow + heuristic fallback"),
                              ("full_no_heuristic", "overlap_completed", "rainbow alone (completed maps)"),
-                             ("camera_r3", "overlap", "rainbow, camera r = 3"), ("greedy", "overlap", "greedy planner")):
+                             ("camera_r3", "overlap", "rainbow, camera r = 3"), ("greedy", "overlap", "greedy planner"),
+                             ("greedy_dead_ends", "overlap", "greedy-dead-ends planner (the teacher)")):
         ax.plot([int(z) for z in sizes], [rb[key][z][stat] for z in sizes], marker=".", label=label)
     bands = [b for b in cpp["lkh"] if "-" in b]
     ax.plot([np.mean([int(x) for x in b.split("-")]) for b in bands], [cpp["lkh"][b] for b in bands], "k*",
@@ -464,10 +476,11 @@ def rainbow_sections(rb: dict, cpp: dict, ext: dict, out: str, table) -> tuple[l
     full = [trained, "", verdict, "", f"`cpp_eval`, the first {rb['per_size']} maps of each size, mean overlap and "
             "completion; heuristic share = fraction of steps the fallback took.", "",
             table(["size", "rainbow + heuristic", "completed", "heuristic share", "rainbow alone (completed maps)",
-                   "completed", "greedy planner"],
+                   "completed", "greedy planner", "greedy-dead-ends planner"],
                   [[z, f"{rb['full'][z]['overlap']:.3f}", f"{100 * rb['full'][z]['completion']:.0f}%",
                     f"{rb['full'][z]['heuristic_share']:.2f}", f"{rb['full_no_heuristic'][z]['overlap_completed']:.3f}",
-                    f"{100 * rb['full_no_heuristic'][z]['completion']:.0f}%", f"{rb['greedy'][z]['overlap']:.3f}"]
+                    f"{100 * rb['full_no_heuristic'][z]['completion']:.0f}%", f"{rb['greedy'][z]['overlap']:.3f}",
+                    f"{rb['greedy_dead_ends'][z]['overlap']:.3f}"]
                    for z in sizes]), "",
             "![rainbow overlap by size](rainbow_overlap_by_size.png)", "",
             "MovingAI maps, mean overlap over the 3 reference starts:", "",

@@ -115,6 +115,10 @@ class Args:
     heuristic_random_ties: bool = False
     """the heuristic breaks ties at random (§6.3.1) instead of by the first cell; the random walk
     overlaps ~4x more (README), so it makes a poorer teacher"""
+    heuristic_dead_ends: bool = True
+    """of equally near targets the heuristic takes the one with the fewest uncovered neighbours
+    first (Warnsdorff's rule, not in the dissertation): half greedy's overlap on cpp_eval, so a
+    better teacher and fallback; --no-heuristic-dead-ends for the dissertation's heuristic"""
     eval_every: int = 25_000
     """environment steps between evaluations on held-out cpp_eval maps"""
     eval_maps: int = 32
@@ -409,7 +413,8 @@ def large_margin_loss(q_all: torch.Tensor, label: torch.Tensor, margin: float) -
 
 
 def evaluate_policy(q: QNetwork, scenarios: list, frames: int, sensor: str = "full", sensor_range: int = 3,
-                    sensor_failure: float = 0.0, heuristic: bool = True, random_ties: bool = False) -> dict:
+                    sensor_failure: float = 0.0, heuristic: bool = True, random_ties: bool = False,
+                    dead_ends_first: bool = True) -> dict:
     """Run the deterministic policy (noise off) once on each scenario, all at once; with
     `heuristic` the navigation heuristic takes over when the agent is stuck (§6.5.2.1, the
     conditions of §6.4.2.4) and keeps control for as many new cells as the agent has been stuck
@@ -442,7 +447,7 @@ def evaluate_policy(q: QNetwork, scenarios: list, frames: int, sensor: str = "fu
                 owed = np.where(now_stuck, times_stuck, owed)
                 fallback = (owed > 0) & ~done
                 if fallback.any():
-                    action = np.where(fallback, core.heuristic_actions(random_ties)[:, 0], action)
+                    action = np.where(fallback, core.heuristic_actions(random_ties, dead_ends_first)[:, 0], action)
                 used += fallback
             ev = core.step(np.where(done, gridworld.WAIT, action)[:, None])
             steps += ~done
@@ -572,7 +577,8 @@ def main(args: Args) -> None:
             action = q(*to_torch(*stack.get())).argmax(1).numpy()
         moved = np.abs(core.agent_cells()[:, 0] - history[0]).sum(1)
         teach = (teacher | continued | stuck(since_new, moved, core.hw.max(1))) & (rng.random(B) < args.imitation)
-        label = core.heuristic_actions(args.heuristic_random_ties)[:, 0] if teach.any() or args.margin_loss else None
+        label = (core.heuristic_actions(args.heuristic_random_ties, args.heuristic_dead_ends)[:, 0]
+                 if teach.any() or args.margin_loss else None)
         if teach.any():
             action = np.where(teach, label, action)
         ev = core.step(action[:, None])
@@ -661,7 +667,8 @@ def main(args: Args) -> None:
             stage = stages[stage_index]
             pool = [s for s in eval_set if s.obstacles.shape[0] <= max(stage.size, 5)]  # cpp_eval starts at 5
             m = evaluate_policy(q, pool[::max(1, len(pool) // args.eval_maps)][:args.eval_maps], args.frame_stack,
-                                stage.sensor, stage.sensor_range, random_ties=args.heuristic_random_ties)
+                                stage.sensor, stage.sensor_range, random_ties=args.heuristic_random_ties,
+                                dead_ends_first=args.heuristic_dead_ends)
             result = dict(overlap=float(m["overlap"].mean()), completion=float(m["completed"].mean()),
                           heuristic_share=float((m["heuristic_steps"] / np.maximum(m["steps"], 1)).mean()))
             for k, v in result.items():

@@ -120,6 +120,10 @@ class Args:
     """the margin by which the heuristic's action must beat every other action"""
     heuristic_random_ties: bool = False
     """the heuristic breaks ties at random (§6.3.1) instead of by the first cell"""
+    heuristic_dead_ends: bool = True
+    """of equally near targets the heuristic takes the one with the fewest uncovered neighbours
+    first (Warnsdorff's rule, not in the dissertation; a better teacher and fallback);
+    --no-heuristic-dead-ends for the dissertation's heuristic"""
     eval_every: int = 25_000
     """environment steps between evaluations on held-out marl_eval maps"""
     eval_maps: int = 32
@@ -419,7 +423,8 @@ def large_margin_loss(q_all: torch.Tensor, label: torch.Tensor, margin: float) -
 
 def evaluate_policy(q: QNetwork, scenarios: list, frames: int, sensor: str = "full", sensor_range: int = 3,
                     sensor_failure: float = 0.0, heuristic: bool = True, random_ties: bool = False,
-                    action_loss: float = 0.0, faulty_at: float | None = None, seed: int = 0) -> dict:
+                    action_loss: float = 0.0, faulty_at: float | None = None, seed: int = 0,
+                    dead_ends_first: bool = True) -> dict:
     """Decentralised execution (§7.4.1) of the deterministic policy (noise off) once on each
     scenario, with as many agents as it has starts. Every agent acts on its own observation with
     the same weights, so one batched forward pass equals N separate copies. With `heuristic` an
@@ -459,7 +464,7 @@ def evaluate_policy(q: QNetwork, scenarios: list, frames: int, sensor: str = "fu
                 endgame = (core.remaining <= working.sum(1))[:, None]
                 fallback = ((owed > 0) | endgame) & working
                 if fallback.any():
-                    action = np.where(fallback, core.heuristic_actions(random_ties), action)
+                    action = np.where(fallback, core.heuristic_actions(random_ties, dead_ends_first), action)
                 used += fallback.sum(1)
             if action_loss:
                 action = np.where(rng.random((B, N)) < action_loss, gridworld.WAIT, action)
@@ -614,7 +619,8 @@ def main(args: Args) -> None:
         endgame = (core.remaining <= core.active.sum(1))[:, None]  # no more cells than agents: all hand over
         teach = ((teacher | continued)[:, None] | endgame | stuck(since_new, moved, core.hw.max(1)[:, None]))
         teach = (teach & (rng.random((B, N)) < args.imitation)).ravel()
-        label = core.heuristic_actions(args.heuristic_random_ties).ravel() if teach.any() or args.margin_loss else None
+        label = (core.heuristic_actions(args.heuristic_random_ties, args.heuristic_dead_ends).ravel()
+                 if teach.any() or args.margin_loss else None)
         if teach.any():  # an agent the heuristic leaves without a target (WAIT) keeps its own move
             action = np.where(teach & (label < gridworld.WAIT), label, action)
         ev = core.step(action.reshape(B, N))
@@ -711,7 +717,7 @@ def main(args: Args) -> None:
             pool = [gridworld.Scenario(s.obstacles, s.starts[:N], s.covered)
                     for s, z in zip(eval_set, eval_sizes) if z <= max(stage.size, 5)]  # marl_eval starts at 5
             m = evaluate_policy(q, pool[::max(1, len(pool) // args.eval_maps)][:args.eval_maps], args.frame_stack,
-                                random_ties=args.heuristic_random_ties)
+                                random_ties=args.heuristic_random_ties, dead_ends_first=args.heuristic_dead_ends)
             result = dict(time_save=float(m["time_save"].mean()), completion=float(m["completed"].mean()),
                           heuristic_share=float((m["heuristic_steps"] / np.maximum(m["steps"] * N, 1)).mean()))
             for k, v in result.items():

@@ -26,8 +26,8 @@ import gridworld as gw  # noqa: E402
 
 EXTERNAL = ROOT / "maps" / "external"
 REFERENCES = json.loads((EXTERNAL / "references.json").read_text())
-SINGLE = ("greedy", "boustrophedon", "spiral-stc", "wavefront", "lkh")
-FAST_SINGLE = ("greedy", "boustrophedon", "spiral-stc", "wavefront")  # no LKH
+SINGLE = ("greedy", "greedy-dead-ends", "boustrophedon", "spiral-stc", "wavefront", "lkh")
+FAST_SINGLE = ("greedy", "greedy-dead-ends", "boustrophedon", "spiral-stc", "wavefront")  # no LKH
 
 
 # ----------------------------------------------------------------------------- helpers
@@ -341,6 +341,22 @@ def test_precovered_cells_need_not_be_visited():
         assert m["steps"] == 4 and m["n_poi_start"] == 1, name
 
 
+def test_dead_ends_first_covers_the_lone_cell_before_the_row():
+    # row 0 uncovered, and the lone cell below the start: greedy takes row 0 first (row-major) and
+    # walks back, 7 steps; dead-ends-first takes the lone cell (no uncovered neighbour) first, 6
+    s = from_rows(["...", "x0x", "x.x"])
+    assert check_legal(s, cc.greedy(s))["steps"] == 7
+    assert check_legal(s, cc.greedy_dead_ends(s))["steps"] == 6
+
+
+def test_dead_ends_first_overlaps_less_than_greedy_on_random_maps():
+    scenarios = [random_scenario(size, 0.1, seed=700 + 10 * size + k) for size in range(6, 21, 2) for k in range(3)]
+    greedy = np.mean([cc.replay(s, p)["overlap"] for s, p in zip(scenarios, cc.plan("greedy", scenarios))])
+    dead_ends = np.mean([cc.replay(s, p)["overlap"]
+                         for s, p in zip(scenarios, cc.plan("greedy-dead-ends", scenarios))])
+    assert dead_ends < 0.75 * greedy, (dead_ends, greedy)
+
+
 # ----------------------------------------------------------------------------- 3. lkh quality
 def test_lkh_bound_and_never_much_worse_than_greedy():
     worse = []
@@ -401,11 +417,12 @@ def test_greedy_single_equals_batched_with_mixed_agent_counts():
 
 
 # ----------------------------------------------------------------------------- 5. several agents
+@pytest.mark.parametrize("dead_ends_first", [False, True])
 @pytest.mark.parametrize("agents", [2, 3, 4, 5])
-def test_multi_agent_greedy_completes_without_blocked_moves(agents):
+def test_multi_agent_greedy_completes_without_blocked_moves(agents, dead_ends_first):
     scenarios = gw.generate_scenarios(6, seed=agents, size=8 + 2 * agents, number_obstacles=agents * 4,
                                       obstacles_random=True, number_agents=agents)
-    for s, paths in zip(scenarios, cc.greedy_many(scenarios)):
+    for s, paths in zip(scenarios, cc.greedy_many(scenarios, dead_ends_first)):
         assert len(paths) == agents
         assert len({len(p) for p in paths}) == 1  # all agents share the clock
         m = check_legal(s, paths)  # replay raises on any blocked move

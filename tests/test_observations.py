@@ -805,6 +805,43 @@ def test_heuristic_deterministic_ties(tmp_path):
                 break
 
 
+def test_heuristic_dead_ends_first_hand_made():
+    """Row 0 and the lone cell below the agent are uncovered, all at distance 1: row-major takes
+    North; dead-ends-first takes the lone cell (no uncovered neighbour), South, with any ties."""
+    wide = np.ones((3, 70), bool)  # the same pattern past the first 64-bit word of each row
+    wide[0, 65:68] = wide[2, 66] = False
+    maps = [(np.array([[0, 0, 0], [1, 1, 1], [1, 0, 1]], bool), [1, 1]), (wide, [1, 66])]
+    for covered, start in maps:
+        core = GridWorldCore(EnvConfig(load_state=True), 1)
+        core.configure(scenarios=[Scenario(np.zeros(covered.shape, bool), np.array([start]), covered)])
+        core.reset()
+        assert core.heuristic_actions(random_ties=False)[0, 0] == 0
+        for _ in range(5):
+            assert core.heuristic_actions(random_ties=True, dead_ends_first=True)[0, 0] == 1
+
+
+def test_heuristic_dead_ends_first_against_reference(tmp_path):
+    """Of the nearest targets, the fewest target 4-neighbours first, then row-major, on random
+    partly covered maps."""
+    rng = np.random.default_rng(22)
+    for rep in range(4):
+        obst, starts, cov = random_scenario(rng, 12, 12, 1, p_obst=0.2, p_cov=0.5)
+        core = make_core(tmp_path, obst, starts, cov, seed=rep, name=f"w{rep}.txt")
+        for _ in range(15):
+            a = core.heuristic_actions(random_ties=False, dead_ends_first=True)
+            m = core.observe()["map"][0, 0]
+            passable, targets = window_known(m)
+            d_agent = bfs(passable, [(C, C)])
+            d_near = d_agent[targets].min()
+            t = np.pad(targets, 1)
+            degree = t[:-2, 1:-1].astype(int) + t[2:, 1:-1] + t[1:-1, :-2] + t[1:-1, 2:]
+            goal = min(map(tuple, np.argwhere(targets & (d_agent == d_near))), key=lambda c: (degree[c], c))
+            dy, dx = MOVES[int(a[0, 0])]
+            assert bfs(passable, [goal])[C + dy, C + dx] == d_near - 1
+            if core.step(a)["terminated"].all():
+                break
+
+
 def test_heuristic_wide_map(tmp_path):
     """Maps wider than 64 columns (several words per row) and beyond the 41x41 window."""
     rng = np.random.default_rng(3)
