@@ -413,7 +413,7 @@ def marl_sections(mr: dict, marl: dict, out: str, table) -> list[str]:
         f"Model `models/rainbow_marl.pt` (hidden {m['args']['hidden']}, from `{m['args']['init_from']}`): "
         f"{m['global_step']:,} environment steps, last stage {m['stage']}, {m['wall_seconds'] / 60:.0f} min with "
         f"{m['torch_threads']} torch thread(s) on a 2-core CPU machine; flags in `models/rainbow_marl.json`. Decentralised execution, noise off, heuristic "
-        "fallback on.", "",
+        "fallback on." + (f" Training: {m['init_from_note']}." if "init_from_note" in m else ""), "",
         f"Targets (issue #7, mean $t_{{sf}}$ on sizes 10-30): {'; '.join(met)}. Completion "
         f"{100 * min(mr['agents'][n]['completion'] for n in agents):.0f}% at worst. Below the greedy planner at "
         f"{len(below)} of the {len(several)} agent counts 2-{several[-1]}.", "",
@@ -464,7 +464,8 @@ def rainbow_sections(rb: dict, cpp: dict, ext: dict, out: str, table) -> tuple[l
     m = rb["model"]
     trained = (f"Model `models/rainbow_cpp.pt` (hidden {m['args']['hidden']}): {m['global_step']:,} environment "
                f"steps, last stage {m['stage']}, {m['wall_seconds'] / 3600:.1f} h on a {m['machine']}; "
-               "flags in `models/rainbow_cpp.json`. Regenerate these numbers with `python evaluate.py report`.")
+               "flags in `models/rainbow_cpp.json`. Regenerate these numbers with `python evaluate.py report`."
+               + (f" Training: {m['init_from_note']}." if "init_from_note" in m else ""))
     target = [z for z in sizes if 5 <= int(z) <= 20]
     below = sum(rb["full"][z]["overlap"] < rb["greedy"][z]["overlap"] for z in target)
     worst = max(target, key=lambda z: rb["full"][z]["overlap"])

@@ -567,7 +567,8 @@ def main(args: Args) -> None:
                                      "args": asdict(args), "numpy_rng": rng.bit_generator.state,
                                      "torch_rng": torch.get_rng_state()})
         export(q, args, {"global_step": global_step, "stage": stages[stage_index].name,
-                         "wall_seconds": round(time.time() - t0), "machine": "2-core CPU"})
+                         "wall_seconds": round(time.time() - t0),
+                         "machine": f"{os.cpu_count()}-core CPU, {torch.get_num_threads()} torch thread(s)"})
 
     while global_step < total and not stop["now"]:
         if global_step >= ends[stage_index]:  # the next curriculum stage, at each world's next reset
