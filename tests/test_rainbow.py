@@ -883,17 +883,10 @@ def test_evaluate_policy_counts_each_worlds_own_steps():
 
 
 @pytest.mark.parametrize("dead_ends", [True, False])
-def test_teacher_and_fallback_use_the_dead_ends_flag(tmp_path, monkeypatch, restore_sigint, dead_ends):
+def test_teacher_and_fallback_use_the_dead_ends_flag(tmp_path, monkeypatch, restore_sigint, heuristic_ties,
+                                                     dead_ends):
     """Every heuristic call of training and of its evaluations breaks ties as --heuristic-dead-ends says."""
     monkeypatch.chdir(tmp_path)
-    seen = []
-    original = gw.GridWorldCore.heuristic_actions
-
-    def recording(self, random_ties=True, dead_ends_first=False):
-        seen.append(dead_ends_first)
-        return original(self, random_ties, dead_ends_first)
-
-    monkeypatch.setattr(gw.GridWorldCore, "heuristic_actions", recording)
     rc.main(small_args(tmp_path, total_steps=300, learning_starts=100, save_every=0, eval_every=200,
                        margin_loss=1.0, heuristic_dead_ends=dead_ends))
-    assert len(seen) > 50 and set(seen) == {dead_ends}
+    assert len(heuristic_ties) > 50 and set(heuristic_ties) == {dead_ends}
