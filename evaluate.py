@@ -332,9 +332,9 @@ def rainbow_results(out: str, per_size: int, p2p_maps: int, model: str) -> dict:
     return result
 
 
-def marl_results(out: str, model: str, every: int = 10) -> dict:
-    """A rainbow_marl model on marl_eval (sizes 10-30, every `every`-th layout) with N = 1..15
-    agents beside the greedy planner with claims, and the faulty-agent
+def marl_results(out: str, model: str, every: int = 10, agents=range(1, 16)) -> dict:
+    """A rainbow_marl model on marl_eval (sizes 10-30, every `every`-th layout) with N = 1..15 agents
+    (`agents`) beside the greedy planners with claims, and the faulty-agent
     experiment of §7.5.3.3 (N = 2, 5, 10: the last agent freezes halfway). Written to
     results/rainbow_marl.json."""
     with open(os.path.splitext(model)[0] + ".json") as f:
@@ -343,7 +343,7 @@ def marl_results(out: str, model: str, every: int = 10) -> dict:
     def mean(rows, key):
         return round(float(np.mean([r[key] for r in rows])), 4)
 
-    for n in range(1, 16):
+    for n in agents:
         scenarios, sizes = classical_cpp.marl_eval_subset(n, every)
         episodes = [(f"marl_eval.npz[{z}x{z}]", s) for s, z in zip(scenarios, sizes)]
         rows = run_marl(Args(policy="marl", checkpoint=model, agents=n), episodes)
