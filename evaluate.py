@@ -404,7 +404,7 @@ def marl_sections(mr: dict, marl: dict, out: str, table) -> list[str]:
                             f"{100 * s['completion_rate']:.0f}%"])
     if rewards:
         rewards = ["", "Reward structures (§7.5.2, Figs. 7.7-7.8) at N = 2, K = 0.25: 15,000 steps each from "
-                   "`models/rainbow_cpp.pt` with the dissertation's recipe (no margin loss), stage file "
+                   "the greedy-teacher `models/rainbow_cpp.pt` of git 0c4b203 with the dissertation's recipe (no margin loss), stage file "
                    "`models/rainbow_marl_reward_stages.yaml`; mean $t_{sf}$ on `marl_eval` sizes 10-24, every 10th map "
                    "(README for the commands; `pretrained` is the single-agent model before any multi-agent training, "
                    "`greedy` the planner with claims on the same maps):",
@@ -444,7 +444,7 @@ def rainbow_sections(rb: dict, cpp: dict, ext: dict, out: str, table) -> tuple[l
     """RESULTS.md lines for the chapter-6 agent, and its overlap-by-size figure."""
     import matplotlib.pyplot as plt
     sizes = sorted(rb["full"], key=int)
-    fig, ax = plt.subplots(figsize=(7, 4))
+    fig, ax = plt.subplots(figsize=(9.5, 4))
     for key, stat, label in (("full", "overlap", "rainbow + heuristic fallback"),
                              ("full_no_heuristic", "overlap_completed", "rainbow alone (completed maps)"),
                              ("camera_r3", "overlap", "rainbow, camera r = 3"), ("greedy", "overlap", "greedy planner"),
@@ -457,7 +457,7 @@ def rainbow_sections(rb: dict, cpp: dict, ext: dict, out: str, table) -> tuple[l
     ax.set(xlabel="map size (edge, cells)", ylabel="mean overlap $O_v$", yscale="log",
            title=f"rainbow_cpp on cpp_eval ({rb['per_size']} maps per size)")
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1))  # outside: the curves fill the plot
     fig.tight_layout()
     fig.savefig(os.path.join(out, "rainbow_overlap_by_size.png"), dpi=120)
     plt.close(fig)
