@@ -2,6 +2,7 @@
 
     python benchmarks/rainbow_sps.py                      # Table 6.1 settings, hidden 512
     python benchmarks/rainbow_sps.py --hidden 256 --replay-ratio 2
+    python benchmarks/rainbow_sps.py --trainer-batch-size 128   # the same samples in fewer, larger updates
 
 The plain loop is the usual per-step DQN: one Gymnasium env, one forward pass per step, frame
 stacks kept in a deque and stored whole in the replay memory, and every 4 steps one double-DQN
@@ -41,6 +42,9 @@ class Args:
     """sampled transitions per environment step (Table 6.1: batch 32 every 4 steps)"""
     batch_size: int = 32
     """transitions per gradient step"""
+    trainer_batch_size: int = 0
+    """rainbow_cpp's batch alone (0: batch_size), at the same replay ratio: 16 worlds add 16
+    transitions a step, so one update of 128 can stand for four of 32"""
     num_envs: int = 16
     """worlds acted in together by rainbow_cpp"""
     size: int = 20
@@ -124,8 +128,8 @@ def batched_trainer(args: Args, workdir: str) -> float:
     wall = []
     for total in (args.learning_starts, args.learning_starts + args.steps):
         run = rainbow_cpp.Args(stages=stage, total_steps=total, learning_starts=args.learning_starts,
-                               hidden=args.hidden, replay_ratio=args.replay_ratio, batch_size=args.batch_size,
-                               num_envs=args.num_envs, buffer_size=64 * args.num_envs * 64, eval_every=0,
+                               hidden=args.hidden, replay_ratio=args.replay_ratio,
+                               batch_size=args.trainer_batch_size or args.batch_size, num_envs=args.num_envs, buffer_size=64 * args.num_envs * 64, eval_every=0,
                                save_every=0, run_name=os.path.join(workdir, "runs"),
                                export=os.path.join(workdir, "model.pt"))
         t0 = time.perf_counter()
@@ -143,5 +147,6 @@ if __name__ == "__main__":
     common = dict(hidden=args.hidden, replay_ratio=args.replay_ratio, batch_size=args.batch_size,
                   size=args.size, steps=args.steps, torch_threads=torch.get_num_threads())
     print(json.dumps({"trainer": "plain single-env loop", "env_steps_per_s": round(plain, 1), **common}))
-    print(json.dumps({"trainer": "rainbow_cpp", "num_envs": args.num_envs, "env_steps_per_s": round(batched, 1), **common}))
+    print(json.dumps({"trainer": "rainbow_cpp", "num_envs": args.num_envs, "env_steps_per_s": round(batched, 1),
+                      **common, "batch_size": args.trainer_batch_size or args.batch_size}))
     print(json.dumps({"speedup": round(batched / plain, 2)}))
