@@ -396,8 +396,9 @@ def lower_bound(scenario: Scenario) -> int:
     return math.ceil((~scenario.obstacles & ~covered).sum() / len(scenario.starts))
 
 
-PLANNERS = {"greedy": greedy, "greedy-dead-ends": greedy_dead_ends, "boustrophedon": boustrophedon, "spiral-stc": spiral_stc,
-            "wavefront": wavefront, "lkh": lkh, "partition": partition}
+PLANNERS = {"greedy": greedy, "greedy-dead-ends": greedy_dead_ends, "boustrophedon": boustrophedon,
+            "spiral-stc": spiral_stc, "wavefront": wavefront, "lkh": lkh, "partition": partition}
+BATCHED = {"greedy": False, "greedy-dead-ends": True}  # planned all at once: name -> dead_ends_first
 SINGLE_AGENT = {"boustrophedon", "spiral-stc", "wavefront", "lkh"}
 
 
@@ -442,9 +443,9 @@ def plan(name: str, scenarios: list[Scenario]) -> list[list[np.ndarray]]:
     if name not in PLANNERS:
         raise ValueError(f"unknown planner {name!r}; choose from {sorted(PLANNERS)}")
     if name in SINGLE_AGENT and any(len(s.starts) != 1 for s in scenarios):
-        raise ValueError(f"{name} is a single-agent planner; use greedy, greedy-dead-ends or partition for several")
-    if name in ("greedy", "greedy-dead-ends"):
-        return greedy_many(scenarios, dead_ends_first=name == "greedy-dead-ends")
+        raise ValueError(f"{name} is a single-agent planner; use {', '.join(BATCHED)} or partition for several")
+    if name in BATCHED:
+        return greedy_many(scenarios, dead_ends_first=BATCHED[name])
     return [PLANNERS[name](s) for s in scenarios]
 
 
