@@ -731,4 +731,4 @@ if __name__ == "__main__":
         else:
             main(tyro.cli(Args))
     except ValueError as e:
-        raise SystemExit(f"error: {e}")
+        raise SystemExit(f"error: {e}") from None

@@ -80,7 +80,7 @@ class RewardParams:
     positive_only_if_new: bool = False
 
     @classmethod
-    def chapter5(cls) -> "RewardParams":
+    def chapter5(cls) -> RewardParams:
         """§5.3.4: every term scaled by 1/(h·w); positive terms only when a new cell is covered."""
         return cls(time_step=0.0, new_cell=1.0, blocked=-10.0, revisit=-5.0, repeated_action=1.0,
                    finished_line=1.0, wall_adjacent=1.0, structure="competitive", gain=0.0,
@@ -122,7 +122,7 @@ class EnvConfig:
     base_steps: int = 0
 
     @classmethod
-    def from_dict(cls, d: dict) -> "EnvConfig":
+    def from_dict(cls, d: dict) -> EnvConfig:
         d = dict(d)
         unknown = set(d) - {f.name for f in dataclasses.fields(cls)}
         if unknown:
@@ -136,7 +136,7 @@ class EnvConfig:
             d["reward"] = RewardParams(**d["reward"])
         return cls(**d)
 
-    def replace(self, **changes) -> "EnvConfig":
+    def replace(self, **changes) -> EnvConfig:
         return EnvConfig.from_dict({**dataclasses.asdict(self), "reward": self.reward, **changes})
 
     def validate(self) -> None:

@@ -735,4 +735,4 @@ if __name__ == "__main__":
     try:
         main(tyro.cli(Args))
     except ValueError as e:
-        raise SystemExit(f"error: {e}")
+        raise SystemExit(f"error: {e}") from None

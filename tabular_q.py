@@ -217,7 +217,7 @@ class QTable:
                             memory=self.memory, sensor_range=self.sensor_range)
 
     @classmethod
-    def load(cls, path: str, memory: int | None = None, sensor_range: int | None = None) -> "QTable":
+    def load(cls, path: str, memory: int | None = None, sensor_range: int | None = None) -> QTable:
         """A saved table; a table trained with another K or r is an error."""
         if not os.path.isfile(path):
             raise ValueError(f"{path}: no such table")
@@ -533,4 +533,4 @@ if __name__ == "__main__":
     try:
         main(tyro.cli(Args))
     except ValueError as e:
-        raise SystemExit(f"error: {e}")
+        raise SystemExit(f"error: {e}") from None

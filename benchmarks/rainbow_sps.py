@@ -130,7 +130,8 @@ def batched_trainer(args: Args, workdir: str) -> float:
         run = rainbow_cpp.Args(stages=stage, total_steps=total, learning_starts=args.learning_starts,
                                hidden=args.hidden, replay_ratio=args.replay_ratio,
                                batch_size=args.trainer_batch_size or args.batch_size, num_envs=args.num_envs,
-                               buffer_size=64 * args.num_envs * 64, eval_every=0, save_every=0, run_name=os.path.join(workdir, "runs"),
+                               buffer_size=64 * args.num_envs * 64, eval_every=0, save_every=0,
+                               run_name=os.path.join(workdir, "runs"),
                                export=os.path.join(workdir, "model.pt"))
         t0 = time.perf_counter()
         rainbow_cpp.main(run)

@@ -19,8 +19,18 @@ import gymnasium as gym  # noqa: E402
 from gymnasium.utils.env_checker import check_env  # noqa: E402
 
 import gridworld  # noqa: E402
-from gridworld import (EnvConfig, GridWorldCore, GridWorldVectorEnv, Scenario,  # noqa: E402
-                       check_scenario, load_config, load_dataset, load_map, save_dataset, save_map)
+from gridworld import (  # noqa: E402
+    EnvConfig,
+    GridWorldCore,
+    GridWorldVectorEnv,
+    Scenario,
+    check_scenario,
+    load_config,
+    load_dataset,
+    load_map,
+    save_dataset,
+    save_map,
+)
 
 MAPS_DIR = Path(__file__).resolve().parent.parent / "maps" / "external"
 MOVINGAI_MAPS = sorted(glob.glob(str(MAPS_DIR / "*.map")))

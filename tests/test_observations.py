@@ -20,8 +20,8 @@ from __future__ import annotations
 
 import json
 import math
-from pathlib import Path
 from collections import deque
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -493,7 +493,7 @@ def test_camera_sees_square(tmp_path):
 def test_seen_region_grows(tmp_path):
     core = make_core(tmp_path, np.zeros((15, 15), bool), [[7, 2]], sensor="camera", sensor_range=1)
     counts = []
-    for t in range(8):
+    for _t in range(8):
         y, x = core.agent_cells()[0, 0]
         m = core.observe()["map"][0, 0]
         counts.append(seen_cells(m)[C - y:C - y + 15, C - x:C - x + 15].sum())
@@ -538,7 +538,7 @@ def test_camera_and_lidar_agree_at_range_1(tmp_path, seed):
     obst, starts, cov = random_scenario(rng, 12, 12, 2, p_obst=0.3)
     cores = [make_core(tmp_path, obst, starts, cov, sensor=s, sensor_range=1, name=f"{s}.txt")
              for s in ("camera", "lidar")]
-    for t in range(30):
+    for _t in range(30):
         a, b = (c.observe() for c in cores)
         for k in a:
             np.testing.assert_array_equal(a[k], b[k])
@@ -647,7 +647,7 @@ def run_heuristic(core, check=True, max_steps=None):
     done = np.zeros(core.B, bool)
     steps = np.zeros(core.B, int)
     max_steps = max_steps or int(core.budget.max())
-    for t in range(max_steps):
+    for _t in range(max_steps):
         a = core.heuristic_actions()
         assert a.shape == (core.B, core.N)
         if check:

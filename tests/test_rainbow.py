@@ -515,7 +515,7 @@ def test_replay_never_samples_slots_without_successor():
     d = Driver(core, rp)
     rng = np.random.default_rng(2)
     newest = set()
-    for step in range(12):
+    for _step in range(12):
         d.step(rng.integers(0, 4, 3), ended=(core.battery <= 1))
         newest = {int(s) for s in d.slot}
         finals = {r["slot"] for w in range(3) for ep in d.episodes[w] for r in ep if r.get("final")}
