@@ -9,6 +9,7 @@ and it rejects illegal or incomplete paths.
     python classical_cpp.py --planner boustrophedon --maps maps/external/room-32-32-4.map
     python classical_cpp.py --planner greedy --dataset maps/cpp_eval.npz --limit 200
     python classical_cpp.py --planner partition --dataset maps/marl_eval.npz --agents 5
+    python classical_cpp.py --report --out DIR     # every planner on the report's maps -> DIR/classical_cpp.json
 
 Single agent: greedy (the navigation heuristic run to completion), greedy-dead-ends (the same
 with Warnsdorff's tie-break: of the nearest uncovered cells, the one with the fewest uncovered
@@ -25,12 +26,15 @@ import heapq
 import json
 import math
 import os
+import sys
+import tempfile
 import time
 from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
 import tyro
+from tqdm import tqdm
 
 import gridworld
 from gridworld import EnvConfig, GridWorldCore, Scenario
@@ -38,6 +42,10 @@ from gridworld import EnvConfig, GridWorldCore, Scenario
 MOVES = ((-1, 0), (1, 0), (0, -1), (0, 1))  # N, S, W, E: the gridworld action order
 LKH_TIME_LIMIT = 10.0  # seconds of LKH search per map (plus reading the problem)
 ROOT = os.path.dirname(os.path.abspath(__file__))
+REPORT_PLANNERS = ("greedy", "boustrophedon", "spiral-stc", "wavefront", "lkh")
+REPORT_BANDS = ((5, 10), (11, 15), (16, 20), (21, 25), (26, 30))  # the map-size bands --report averages the overlap over
+REPORT_AGENTS = (2, 5, 10)
+MARL_MIN_SIZE, MARL_EVERY = 10, 5  # the multi-agent baselines: every 5th marl_eval layout of sizes 10-30
 
 
 # ----------------------------------------------------------------------------- the grid graph
@@ -346,6 +354,308 @@ def greedy_dead_ends(scenario: Scenario) -> list[np.ndarray]:
     return greedy_many([scenario], dead_ends_first=True)[0]
 
 
+# ----------------------------------------------------------------------------- rollout (one-step lookahead)
+def heuristic_base(dead_ends_first: bool = True):
+    """The navigation heuristic with deterministic ties as a rollout base: base(core) -> (B, N) actions."""
+    def base(core: GridWorldCore) -> np.ndarray:
+        return core.heuristic_actions(random_ties=False, dead_ends_first=dead_ends_first)
+
+    base.markov = True  # its moves depend on the agents' cells and the coverage only
+    return base
+
+
+ROLLOUT_BASES = {"greedy": heuristic_base(False), "greedy-dead-ends": heuristic_base(True)}  # --rollout-base
+_SPAWN, _RUN, _APPLY, _DONE = range(4)  # the phase of a map in rollout_many
+
+
+def _step_some(core: GridWorldCore, actions: np.ndarray, stepping: np.ndarray) -> dict:
+    """core.step for the worlds in `stepping` only: the others WAIT and get their step count, battery and
+    last action back, which is all a WAIT changes (same cells, same coverage, the same sensor footprint)."""
+    keep = ~stepping
+    saved = core.steps[keep], core.battery[keep], core.last_action[keep]
+    events = core.step(np.where(stepping[:, None], actions, gridworld.WAIT))
+    core.steps[keep], core.battery[keep], core.last_action[keep] = saved
+    return events
+
+
+def rollout_many(scenarios: list[Scenario], base=None, config: EnvConfig | None = None,
+                 stats: dict | None = None) -> list[list[np.ndarray]]:
+    """Rollout (Bertsekas): at every step try each move, finish each try with the base policy and take
+    the move with the fewest total steps (the base's own move on ties), for many maps at once. For a
+    deterministic base the result is never longer than the base's own path (cost improvement).
+
+    `base(core) -> (B, N)` gives the base's actions for every world of a GridWorldCore (default
+    greedy-dead-ends); any deterministic policy that reads only the core's state fits, e.g. a learned
+    one acting on core.observe(). A base marked `base.markov = True` (its moves depend only on the
+    agents' cells and the coverage, as the heuristic's do) also lets states met twice share their cost
+    to go. `config` sets the worlds (default: gridworld's, with a battery that never runs out). Several
+    agents decide one after the other (multiagent rollout): agent i tries its moves (WAIT too) with
+    agents < i on their chosen moves and agents > i on the base's, N lookaheads a step instead of 5^N.
+
+    One core holds, per map, its real world and K candidate worlds (K = 3 moves besides the
+    incumbent's for one agent, 4 with WAIT for several). Every iteration is one batched base call and
+    one step of the busy worlds: maps run asynchronously (one spawns candidates while another's still
+    run), idle worlds are frozen so the heuristic skips them, and finished maps leave the core (it is
+    rebuilt at half occupancy). The incumbent's cost is never simulated: it is the previous winner's
+    cost minus the step taken (the winner's completion is the base's completion from the new state).
+    Candidates run in lockstep and stop once steps + ceil(remaining / agents) reaches the best cost
+    known (a lower bound: an agent covers at most a cell a step), so a decision ends when the first
+    candidate finishes or all have wasted as many steps as the incumbent; a markov base's candidates
+    also stop on reaching a state of known cost to go (one on a finished candidate's path: its cost is
+    then exact) or a state another candidate reached no later (theirs is no worse). Moves into
+    obstacles are skipped. `stats`, if given, gets the iterations, decisions and candidate steps."""
+    base = base or ROLLOUT_BASES["greedy-dead-ends"]
+    config = config or EnvConfig(battery_factor=1e6)
+    out: list[list[np.ndarray]] = [[] for _ in scenarios]
+    by_agents: dict[int, list[int]] = {}
+    for i, s in enumerate(scenarios):
+        by_agents.setdefault(len(s.starts), []).append(i)
+    for n, rows in by_agents.items():  # one core per number of agents
+        solver = _Rollout([scenarios[i] for i in rows], n, base, config)
+        paths = solver.solve()
+        if stats is not None:
+            for k, v in solver.stats.items():
+                stats[k] = stats.get(k, 0) + v
+        for i, p in zip(rows, paths):
+            out[i] = p
+    return out
+
+
+class _Rollout:
+    """The state of rollout_many for maps with N agents each; see rollout_many. World m * (K + 1) of
+    the core is map m's real world, the next K its candidate slots."""
+
+    def __init__(self, group: list[Scenario], N: int, base, config: EnvConfig):
+        self.N, self.base, self.group = N, base, group
+        self.moves = np.arange(4 if N == 1 else 5)  # a single agent never gains by waiting
+        self.K = K = len(self.moves) - 1
+        self.cfg = config.replace(load_state=True, load_random=False, number_agents=N)
+        self.markov = bool(getattr(base, "markov", False))  # its actions depend on agent cells and coverage only
+        M = len(group)
+        self.core = self._core(M)
+        self.core.reset(scenarios=[s for s in group for _ in range(K + 1)])
+        self.maps = np.arange(M)  # the group index of each map in the core
+        real = self.real
+        self.traces = [[c] for c in self.core.agent_cells()[real]]
+        self.phase = np.where(self.core.remaining[real] == 0, _DONE, _SPAWN)
+        self.cost = np.full(M, np.inf)  # steps the incumbent joint move needs to finish (inf: unknown)
+        self.known = np.zeros(M, bool)
+        self.agent = np.zeros(M, np.int64)  # the agent deciding
+        self.fresh = np.ones(M, bool)  # a new step: the incumbent is the base's joint move
+        self.chosen = np.zeros((M, N), np.int64)  # incumbent: agents < agent chosen, the others the base's
+        self.best = np.full(M, np.inf)
+        self.best_slot = np.full(M, -1)
+        self.probe = np.zeros(M, bool)
+        self.cand = np.zeros((M, K, N), np.int64)  # the candidates' first joint moves
+        self.run = np.zeros((M, K), bool)
+        self.first = np.zeros((M, K), bool)
+        self.start = np.zeros((M, K), np.int64)
+        self.final = np.full((M, K), np.inf)  # the candidates' costs, where known
+        # Zobrist keys of (coverage, agent cells): a state met again has the same cost to go
+        P = self.core.Ph * self.core.Pw
+        rng = np.random.default_rng(0)
+        self.zcell = np.frombuffer(rng.bytes(8 * P), np.uint64)
+        self.zpos = np.frombuffer(rng.bytes(8 * N * P), np.uint64).reshape(N, P)
+        cov = self.core.covered.reshape(-1, P)
+        self.hash = np.bitwise_xor.reduce(np.where(cov, self.zcell, np.uint64(0)), 1)
+        self.togo = [{} for _ in range(M)]  # state key -> the base's steps to finish from it
+        self.seen = [{} for _ in range(M)]  # this decision's candidate states -> (steps, slot)
+        self.hist = [[[] for _ in range(K)] for _ in range(M)]  # candidate state keys, step by step
+        self.stats = dict(iterations=0, decisions=0, candidate_steps=0)
+
+    def _core(self, m: int) -> GridWorldCore:
+        core = GridWorldCore(self.cfg, m * (self.K + 1))
+        core.configure(scenarios=self.group)
+        return core
+
+    @property
+    def real(self) -> np.ndarray:
+        return np.arange(len(self.maps)) * (self.K + 1)
+
+    def keys(self, worlds: np.ndarray) -> np.ndarray:
+        local = self.core.pos[worlds] - (worlds * self.core.Ph * self.core.Pw)[:, None]
+        return self.hash[worlds] ^ np.bitwise_xor.reduce(self.zpos[np.arange(self.N), local], 1)
+
+    def copy(self, src: np.ndarray, dst: np.ndarray) -> None:
+        self.core.copy_worlds(src, dst)
+        self.hash[dst] = self.hash[src]
+
+    def compact(self) -> None:
+        """Rebuild the core without the finished maps."""
+        keep = np.flatnonzero(self.phase != _DONE)
+        worlds = (keep[:, None] * (self.K + 1) + np.arange(self.K + 1)).ravel()
+        small = self._core(len(keep))
+        small.copy_worlds(worlds, np.arange(len(worlds)), source=self.core)
+        self.core, self.hash, self.maps = small, self.hash[worlds], self.maps[keep]
+        for k in ("phase", "cost", "known", "agent", "fresh", "chosen", "best", "best_slot", "probe", "cand",
+                  "run", "first", "start", "final"):
+            setattr(self, k, getattr(self, k)[keep])
+        for k in ("togo", "seen", "hist"):
+            setattr(self, k, [getattr(self, k)[i] for i in keep])
+
+    def solve(self) -> list[list[np.ndarray]]:
+        while (self.phase != _DONE).any():
+            if (self.phase != _DONE).sum() * 2 <= len(self.maps) and len(self.maps) > 4:
+                self.compact()
+            self.iterate()
+        return [[np.stack(t)[:, a].copy() for a in range(self.N)] for t in self.traces]
+
+    def iterate(self) -> None:
+        core, K, N = self.core, self.K, self.N
+        Mc, real = len(self.maps), self.real
+        phase = self.phase
+        # the base's moves; idle worlds are frozen for the call, so a heuristic base skips them
+        frozen = core.frozen[real].copy()
+        core.frozen[real[phase != _SPAWN]] = True
+        slots = core.frozen.reshape(Mc, K + 1, N)[:, 1:]
+        slots[~self.run] = True
+        core.any_frozen = True
+        acts = np.asarray(self.base(core), np.int64).reshape(Mc, K + 1, N)
+        core.frozen[real] = frozen
+        spawn = phase == _SPAWN
+        self.chosen[spawn & self.fresh] = acts[spawn & self.fresh, 0]
+        self.fresh[spawn] = False
+        p = np.flatnonzero(spawn & ~self.known)  # a map's first incumbent cost is simulated once
+        if len(p):
+            self.copy(real[p], real[p] + 1)
+            self.cand[p, 0], self.run[p, 0], self.first[p, 0] = self.chosen[p], True, True
+            self.final[p] = np.inf
+            self.start[p, 0] = core.steps[real[p]]
+            self.probe[p], self.known[p], phase[p], self.best[p], self.best_slot[p] = True, True, _RUN, np.inf, -1
+            for m in p:
+                self.seen[m], self.hist[m][0] = {}, []
+            spawn[p] = False
+        for _ in range(N):  # candidates of the deciding agent; an agent without any passes at once
+            s = np.flatnonzero(spawn)
+            if len(s) == 0:
+                break
+            spawn[:] = False
+            spawn[self._spawn(s)] = True
+        # the step: the candidates' first moves, else the base's; decisions on the real worlds
+        step_acts = acts.copy()
+        step_acts[:, 1:] = np.where(self.first[..., None], self.cand, acts[:, 1:])
+        apply = np.flatnonzero(phase == _APPLY)
+        step_acts[apply, 0] = self.chosen[apply]
+        stepping = np.zeros((Mc, K + 1), bool)
+        stepping[:, 1:] = self.run
+        stepping[apply, 0] = True
+        events = _step_some(core, step_acts.reshape(-1, N), stepping.ravel())
+        local = core.pos - (np.arange(core.B) * core.Ph * core.Pw)[:, None]
+        self.hash ^= np.bitwise_xor.reduce(np.where(events["new"], self.zcell[local], np.uint64(0)), 1)
+        self.stats["iterations"] += 1
+        self.stats["candidate_steps"] += int(self.run.sum())
+        if len(apply):
+            cells = core.agent_cells()[real[apply]]
+            for j, m in enumerate(apply):
+                self.traces[self.maps[m]].append(cells[j])
+            self.stats["decisions"] += len(apply)
+            self.cost[apply] -= 1
+            self.agent[apply], self.fresh[apply] = 0, True
+            over = (core.remaining[real[apply]] == 0) | (core.battery[real[apply]] <= 0)  # (a truncated map fails replay)
+            phase[apply] = np.where(over, _DONE, _SPAWN)
+        r = np.flatnonzero(phase == _RUN)
+        if len(r):
+            self._judge(r, events)
+
+    def _spawn(self, s: np.ndarray) -> np.ndarray:
+        """Candidates for the deciding agent of maps s: the moves but the incumbent's, skipping moves
+        into obstacles and those that cannot beat the incumbent even covering a cell per agent and
+        step. Maps with none keep the incumbent's move; returns those that decide their next agent."""
+        core, K, N = self.core, self.K, self.N
+        real, i = self.real[s], self.agent[s]
+        rows = np.arange(len(s))
+        inc = self.chosen[s, i]
+        u = np.argsort(self.moves[None] == inc[:, None], 1, kind="stable")[:, :K]  # (a single agent's WAIT: N, S, W)
+        joint = self.chosen[s][:, None].repeat(K, 1)
+        joint[rows[:, None], np.arange(K), i[:, None]] = u
+        tgt = core.pos[real][:, None] + core.delta[joint]  # (S, K, N)
+        ok = ~core.views["obstacle"][tgt[rows, :, i]] | (u == gridworld.WAIT)
+        working = core.active[real] & ~core.frozen[real]
+        ok &= working[rows, i][:, None]
+        gain = (~core.views["covered"][tgt] & ~core.views["obstacle"][tgt] & (joint != gridworld.WAIT)).sum(2)
+        n_work = np.maximum(working.sum(1), 1)[:, None]
+        lb = 1 + -(-np.maximum(core.remaining[real][:, None] - gain, 0) // n_work)
+        ok &= lb < self.cost[s][:, None]
+        has = ok.any(1)
+        go = s[has]
+        if len(go):
+            slots = (real[has][:, None] + 1 + np.arange(K))[ok[has]]
+            self.copy(np.repeat(real[has], ok[has].sum(1)), slots)
+            self.cand[go], self.run[go], self.first[go] = joint[has], ok[has], ok[has]
+            self.final[go] = np.inf
+            self.start[go] = core.steps[real[has]][:, None]
+            self.probe[go], self.phase[go], self.best[go], self.best_slot[go] = False, _RUN, self.cost[go], -1
+            if self.markov:
+                for m in go:
+                    self.seen[m], self.hist[m] = {}, [[] for _ in range(K)]
+        idle = s[~has]
+        self.agent[idle] += 1
+        self.phase[idle[self.agent[idle] == N]] = _APPLY
+        return idle[self.agent[idle] < N]
+
+    def _judge(self, r: np.ndarray, events: dict) -> None:
+        """After a step: candidates that finished, met a state of known cost, met a state another
+        candidate reached first, cannot beat the best cost known, ran out of battery or (first move)
+        were blocked stop; a map whose candidates have all stopped takes the best."""
+        core, K = self.core, self.K
+        w = self.real[r][:, None] + 1 + np.arange(K)
+        blocked = self.first[r] & events["blocked"][w, self.agent[r][:, None]] & ~self.probe[r][:, None]
+        run = self.run[r] & ~blocked  # a blocked first move is the WAIT candidate's, or a wasted step
+        steps = (core.steps[w] - self.start[r]).astype(float)
+        rem = core.remaining[w]
+        done_cost = np.where(run & (rem == 0), steps, np.inf)
+        stop = run & (rem == 0)
+        if self.markov:
+            keys = self.keys(w.ravel()).reshape(w.shape)
+            for j, k in zip(*np.nonzero(run & (rem > 0))):
+                m, key, s = r[j], keys[j, k], steps[j, k]
+                self.hist[m][k].append(key)
+                togo = self.togo[m].get(key)
+                if togo is not None:  # the base's cost from here is known
+                    done_cost[j, k], stop[j, k] = s + togo, True
+                    continue
+                prev = self.seen[m].setdefault(key, (s, k))
+                if prev != (s, k):  # reached before (or at once by a lower slot, or by itself: a loop)
+                    stop[j, k] = True
+        self.final[r] = np.minimum(self.final[r], done_cost)
+        k = done_cost.argmin(1)
+        rows = np.arange(len(r))
+        better = done_cost[rows, k] < self.best[r]
+        self.best[r[better]], self.best_slot[r[better]] = done_cost[better, k[better]], k[better]
+        working = (core.active[w] & ~core.frozen[w]).sum(2)
+        lb = steps + -(-rem // np.maximum(working, 1))
+        stop |= (lb >= self.best[r][:, None]) | (core.battery[w] <= 0)
+        self.run[r] = run & ~stop
+        self.first[r] = False
+        over = r[~self.run[r].any(1)]
+        for m in over:
+            self._decide(m)
+
+    def _decide(self, m: int) -> None:
+        k = self.best_slot[m]
+        if self.markov:  # the states of candidates that finished have known costs to go
+            if self.probe[m]:
+                self.togo[m][self.keys(self.real[m:m + 1])[0]] = self.best[m]
+            togo = self.togo[m]
+            for j in np.flatnonzero(np.isfinite(self.final[m])):
+                cost = self.final[m, j]
+                for t, key in enumerate(self.hist[m][j]):
+                    togo.setdefault(key, cost - 1 - t)
+        if self.probe[m]:
+            self.cost[m], self.phase[m] = self.best[m], _SPAWN
+            return
+        if k >= 0:
+            self.chosen[m] = self.cand[m, k]
+            self.cost[m] = self.best[m]
+        self.agent[m] += 1
+        self.phase[m] = _APPLY if self.agent[m] == self.N else _SPAWN
+
+
+def rollout(scenario: Scenario) -> list[np.ndarray]:
+    """One-step lookahead over greedy-dead-ends (rollout_many for one map)."""
+    return rollout_many([scenario])[0]
+
+
 # ----------------------------------------------------------------------------- several agents
 def partition(scenario: Scenario) -> list[np.ndarray]:
     """Balanced connected regions, then greedy coverage inside each. Regions grow from the
@@ -396,9 +706,9 @@ def lower_bound(scenario: Scenario) -> int:
     return math.ceil((~scenario.obstacles & ~covered).sum() / len(scenario.starts))
 
 
-PLANNERS = {"greedy": greedy, "greedy-dead-ends": greedy_dead_ends, "boustrophedon": boustrophedon,
+PLANNERS = {"greedy": greedy, "greedy-dead-ends": greedy_dead_ends, "rollout": rollout, "boustrophedon": boustrophedon,
             "spiral-stc": spiral_stc, "wavefront": wavefront, "lkh": lkh, "partition": partition}
-BATCHED = {"greedy": False, "greedy-dead-ends": True}  # planned all at once: name -> dead_ends_first
+BATCHED = {"greedy": False, "greedy-dead-ends": True, "rollout": None}  # planned all at once: name -> dead_ends_first
 SINGLE_AGENT = {"boustrophedon", "spiral-stc", "wavefront", "lkh"}
 
 
@@ -438,12 +748,17 @@ def replay(scenario: Scenario, paths: list[np.ndarray]) -> dict:
     return metrics
 
 
-def plan(name: str, scenarios: list[Scenario]) -> list[list[np.ndarray]]:
-    """Paths of planner `name` for every scenario (greedy is batched over all of them)."""
+def plan(name: str, scenarios: list[Scenario], rollout_base: str = "greedy-dead-ends") -> list[list[np.ndarray]]:
+    """Paths of planner `name` for every scenario (greedy and rollout are batched over all of them;
+    rollout looks ahead with `rollout_base`, one of ROLLOUT_BASES)."""
     if name not in PLANNERS:
         raise ValueError(f"unknown planner {name!r}; choose from {sorted(PLANNERS)}")
     if name in SINGLE_AGENT and any(len(s.starts) != 1 for s in scenarios):
         raise ValueError(f"{name} is a single-agent planner; use {', '.join(BATCHED)} or partition for several")
+    if name == "rollout":
+        if rollout_base not in ROLLOUT_BASES:
+            raise ValueError(f"unknown rollout base {rollout_base!r}; choose from {sorted(ROLLOUT_BASES)}")
+        return rollout_many(scenarios, ROLLOUT_BASES[rollout_base])
     if name in BATCHED:
         return greedy_many(scenarios, dead_ends_first=BATCHED[name])
     return [PLANNERS[name](s) for s in scenarios]
@@ -453,7 +768,9 @@ def plan(name: str, scenarios: list[Scenario]) -> list[list[np.ndarray]]:
 @dataclass
 class Args:
     planner: str = "greedy"
-    """one of greedy, greedy-dead-ends, boustrophedon, spiral-stc, wavefront, lkh, partition"""
+    """one of greedy, greedy-dead-ends, rollout, boustrophedon, spiral-stc, wavefront, lkh, partition"""
+    rollout_base: str = "greedy-dead-ends"
+    """the base policy --planner rollout looks ahead with (greedy or greedy-dead-ends)"""
     maps: tuple[str, ...] = ()
     """MovingAI .map or ASCII map files (starts from the file, else drawn with --seed)"""
     dataset: str | None = None
@@ -465,16 +782,24 @@ class Args:
     seed: int = 0
     """seed for starts drawn at random"""
     out: str | None = None
-    """write one JSON line of metrics per scenario here"""
+    """a file for one JSON line of metrics per scenario; with --report the folder for classical_cpp.json
+    (default results/)"""
     report: bool = False
     """instead: run every planner on maps/cpp_eval.npz (--per-size maps per size), the external
-    maps and maps/marl_eval.npz, write results/classical_cpp.json and print the README tables"""
+    maps and maps/marl_eval.npz, write OUT/classical_cpp.json and print the README tables"""
     per_size: int = 20
     """maps per size for --report (LKH takes seconds per map)"""
+    quiet: bool = False
+    """no progress bar"""
 
 
 def load_scenarios(args: Args) -> list[Scenario]:
+    if args.agents < 1:
+        raise ValueError(f"--agents must be >= 1, got {args.agents}")
+    if args.limit < 0:
+        raise ValueError(f"--limit must be >= 0 (0: all), got {args.limit}")
     scenarios = gridworld.load_dataset(args.dataset) if args.dataset else []
+    names = [f"{args.dataset}[{i}]" for i in range(len(scenarios))] + list(args.maps)
     for path in args.maps:
         scenarios.append(gridworld.load_map(path))
     if not scenarios:
@@ -482,8 +807,8 @@ def load_scenarios(args: Args) -> list[Scenario]:
     if args.limit:
         scenarios = scenarios[:args.limit]
     rng = np.random.default_rng(args.seed)
-    for s in scenarios:
-        s.starts = starts_for(s, args.agents, rng, "a map")
+    for s, name in zip(scenarios, names):
+        s.starts = starts_for(s, args.agents, rng, name)
         s.covered = None if s.covered is None else s.covered & ~s.obstacles
         with_starts(s)
     return scenarios
@@ -506,11 +831,21 @@ def with_starts(s: Scenario) -> Scenario:
     return s
 
 
-def evaluate(name: str, scenarios: list[Scenario]) -> tuple[list[dict], float]:
-    t0 = time.perf_counter()
-    paths = plan(name, scenarios)
-    seconds = time.perf_counter() - t0
-    return [replay(s, p) for s, p in zip(scenarios, paths)], 1000 * seconds / len(scenarios)
+def evaluate(name: str, scenarios: list[Scenario], bar: tqdm | None = None,
+             rollout_base: str = "greedy-dead-ends") -> tuple[list[dict], float]:
+    """Plan and replay every scenario: the metrics of each, and the planning time in ms per map. The
+    batched planners plan 64 maps at a time, the others one at a time, so that `bar` moves."""
+    rows, seconds = [], 0.0
+    step = 64 if name in BATCHED else 1
+    for i in range(0, len(scenarios), step):
+        part = scenarios[i:i + step]
+        t0 = time.perf_counter()
+        paths = plan(name, part, rollout_base)
+        seconds += time.perf_counter() - t0
+        rows += [replay(s, p) for s, p in zip(part, paths)]
+        if bar is not None:
+            bar.update(len(part))
+    return rows, 1000 * seconds / max(len(scenarios), 1)
 
 
 def cpp_eval_subset(per_size: int) -> tuple[list[Scenario], np.ndarray]:
@@ -522,12 +857,12 @@ def cpp_eval_subset(per_size: int) -> tuple[list[Scenario], np.ndarray]:
     return [all_maps[i] for i in keep], sizes[keep]
 
 
-def marl_eval_subset(agents: int, every: int = 5) -> tuple[list[Scenario], np.ndarray]:
+def marl_eval_subset(agents: int, every: int = MARL_EVERY) -> tuple[list[Scenario], np.ndarray]:
     """Every `every`-th marl_eval layout of sizes 10-30 with its first `agents` starts (the
     N + 1-agent episode adds one agent to the N-agent one, §7.5.1), and their sizes."""
     path = os.path.join(ROOT, "maps", "marl_eval.npz")
     sizes = np.load(path)["size"]
-    keep = np.flatnonzero(sizes >= 10)[::every]
+    keep = np.flatnonzero(sizes >= MARL_MIN_SIZE)[::every]
     all_maps = gridworld.load_dataset(path)
     return [with_starts(Scenario(all_maps[i].obstacles, all_maps[i].starts[:agents])) for i in keep], sizes[keep]
 
@@ -544,67 +879,109 @@ def external_episodes() -> list[tuple[str, Scenario]]:
     return episodes
 
 
-def report(per_size: int) -> None:
-    """The README tables: mean overlap by size band on cpp_eval, per external map, and the
-    multi-agent baselines' time-save factor on marl_eval."""
-    bands = [(5, 10), (11, 15), (16, 20), (21, 25), (26, 30)]
+def compare(per_size: int, quiet: bool = False) -> dict:
+    """Every report planner on the first `per_size` cpp_eval maps of each size (mean overlap by size
+    band) and on the external maps (overlap per reference start), and the multi-agent baselines'
+    mean time-save factor on marl_eval beside the lower bound."""
+    if per_size < 1:
+        raise ValueError(f"--per-size must be >= 1, got {per_size}")
     cpp, sizes = cpp_eval_subset(per_size)
     external = external_episodes()
-    result = {"per_size": per_size, "lkh_time_limit_s": LKH_TIME_LIMIT, "cpp_eval": {},
-              "external": {}, "marl_eval": {}}
-    for name in ("greedy", "boustrophedon", "spiral-stc", "wavefront", "lkh"):
-        rows, ms = evaluate(name, cpp)
-        overlap = np.array([r["overlap"] for r in rows])
-        result["cpp_eval"][name] = {
-            "plan_ms_per_map": round(ms, 2), "all": round(float(overlap.mean()), 4),
-            **{f"{a}-{b}": round(float(overlap[(sizes >= a) & (sizes <= b)].mean()), 4) for a, b in bands}}
-        rows, _ = evaluate(name, [s for _, s in external])
-        for (m, _), r in zip(external, rows):
-            result["external"].setdefault(m, {}).setdefault(name, []).append(r["overlap"])
-        print(name, json.dumps(result["cpp_eval"][name]), flush=True)
-    for n in (2, 5, 10):
-        chosen, _ = marl_eval_subset(n)
-        bound = np.mean([lower_bound(s) / max(int((~s.obstacles).sum()) - n, 1) for s in chosen])
-        entry = {"maps": len(chosen), "lower_bound_time_save": round(float(bound), 4)}
-        for name in ("greedy", "partition"):
-            rows, _ = evaluate(name, chosen)
-            entry[name] = round(float(np.mean([r["time_save"] for r in rows])), 4)
-        result["marl_eval"][str(n)] = entry
-        print(n, json.dumps(entry), flush=True)
-    os.makedirs(os.path.join(ROOT, "results"), exist_ok=True)
-    with open(os.path.join(ROOT, "results", "classical_cpp.json"), "w") as f:
-        json.dump(result, f, indent=1)
-    names = list(result["cpp_eval"])
-    print("\n| planner | " + " | ".join(f"{a}–{b}" for a, b in bands) + " | all | plan ms/map |")
-    print("|---" * (len(bands) + 3) + "|")
-    for name in names:
-        r = result["cpp_eval"][name]
-        print(f"| {name} | " + " | ".join(f"{r[f'{a}-{b}']:.3f}" for a, b in bands)
-              + f" | {r['all']:.3f} | {r['plan_ms_per_map']:.1f} |")
-    print("\n| map | " + " | ".join(names) + " |")
-    print("|---" * (len(names) + 1) + "|")
+    teams = {n: marl_eval_subset(n) for n in REPORT_AGENTS}
+    result = {"per_size": per_size, "lkh_time_limit_s": LKH_TIME_LIMIT, "marl_every": MARL_EVERY,
+              "marl_sizes": [int(min(z.min() for _, z in teams.values())), int(max(z.max() for _, z in teams.values()))],
+              "cpp_eval": {}, "external": {}, "marl_eval": {}}
+    total = len(REPORT_PLANNERS) * (len(cpp) + len(external)) + 2 * sum(len(c) for c, _ in teams.values())
+    with tqdm(total=total, desc="planners", unit="map", disable=quiet or not sys.stdout.isatty()) as bar:
+        for name in REPORT_PLANNERS:
+            bar.set_description(name)
+            rows, ms = evaluate(name, cpp, bar)
+            overlap = np.array([r["overlap"] for r in rows])
+            result["cpp_eval"][name] = {
+                "plan_ms_per_map": round(ms, 2), "all": round(float(overlap.mean()), 4),
+                **{f"{a}-{b}": round(float(overlap[(sizes >= a) & (sizes <= b)].mean()), 4) for a, b in REPORT_BANDS}}
+            rows, _ = evaluate(name, [s for _, s in external], bar)
+            for (m, _), r in zip(external, rows):
+                result["external"].setdefault(m, {}).setdefault(name, []).append(r["overlap"])
+        for n, (chosen, _) in teams.items():
+            bound = np.mean([lower_bound(s) / max(int((~s.obstacles).sum()) - n, 1) for s in chosen])
+            entry = {"maps": len(chosen), "lower_bound_time_save": round(float(bound), 4)}
+            for name in ("greedy", "partition"):
+                bar.set_description(f"{name}, {n} agents")
+                rows, _ = evaluate(name, chosen, bar)
+                entry[name] = round(float(np.mean([r["time_save"] for r in rows])), 4)
+            result["marl_eval"][str(n)] = entry
+    return result
+
+
+def tables(result: dict) -> str:
+    """The README tables of a `compare` result, as Markdown."""
+    names, bands = list(result["cpp_eval"]), [k for k in next(iter(result["cpp_eval"].values())) if "-" in k]
+    lines = ["| planner | " + " | ".join(b.replace("-", "–") for b in bands) + " | all | plan ms/map |",
+             "|---" * (len(bands) + 3) + "|"]
+    for name, r in result["cpp_eval"].items():
+        lines.append(f"| {name} | " + " | ".join(f"{r[b]:.3f}" for b in bands)
+                     + f" | {r['all']:.3f} | {r['plan_ms_per_map']:.1f} |")
+    lines += ["", "| map | " + " | ".join(names) + " |", "|---" * (len(names) + 1) + "|"]
     for m, per in result["external"].items():
-        print(f"| {m} | " + " | ".join(f"{np.mean(per[n]):.3f}" for n in names) + " |")
-    print("\n| agents | maps | greedy (claims) | partition | lower bound |")
-    print("|---|---|---|---|---|")
+        lines.append(f"| {m} | " + " | ".join(f"{np.mean(per[n]):.3f}" for n in names) + " |")
+    lines += ["", "| agents | maps | greedy (claims) | partition | lower bound |", "|---|---|---|---|---|"]
     for n, e in result["marl_eval"].items():
-        print(f"| {n} | {e['maps']} | {e['greedy']:.3f} | {e['partition']:.3f} "
-              f"| {e['lower_bound_time_save']:.3f} |")
+        lines.append(f"| {n} | {e['maps']} | {e['greedy']:.3f} | {e['partition']:.3f} | {e['lower_bound_time_save']:.3f} |")
+    return "\n".join(lines)
+
+
+def write_json(path: str, data: dict) -> str:
+    """Write `data` to `path` through a temporary file in the same folder, so `path` is never half-written."""
+    folder = os.path.dirname(os.path.abspath(path))
+    try:
+        os.makedirs(folder, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=folder, prefix=".tmp-", suffix=".json")
+    except OSError as e:
+        raise ValueError(f"{path}: cannot write ({e.strerror})") from None
+    try:
+        with os.fdopen(fd, "w") as f:
+            json.dump(data, f, indent=1)
+        os.replace(tmp, path)
+    except BaseException as e:
+        os.remove(tmp)
+        if isinstance(e, OSError):
+            raise ValueError(f"{path}: cannot write ({e.strerror})") from None
+        raise
+    return path
+
+
+def report(per_size: int, out: str, quiet: bool = False) -> dict:
+    """`compare` into OUT/classical_cpp.json, and its tables printed."""
+    if os.path.exists(out) and not os.path.isdir(out):
+        raise ValueError(f"--out {out}: not a folder")
+    result = compare(per_size, quiet)
+    write_json(os.path.join(out, "classical_cpp.json"), result)
+    print(tables(result))
+    return result
 
 
 def main(args: Args) -> None:
     if args.report:
-        return report(args.per_size)
+        report(args.per_size, args.out or os.path.join(ROOT, "results"), args.quiet)
+        return
+    if args.planner not in PLANNERS:
+        raise ValueError(f"unknown planner {args.planner!r}; choose from {sorted(PLANNERS)}")
+    if args.out and not os.path.isdir(os.path.dirname(os.path.abspath(args.out))):
+        raise ValueError(f"--out {args.out}: no such folder")
     scenarios = load_scenarios(args)
-    rows, ms = evaluate(args.planner, scenarios)
+    with tqdm(total=len(scenarios), desc=args.planner, unit="map", disable=args.quiet or not sys.stdout.isatty()) as bar:
+        rows, ms = evaluate(args.planner, scenarios, bar, args.rollout_base)
     if args.out:
-        with open(args.out, "w") as f:
-            for s, r in zip(scenarios, rows):
-                f.write(json.dumps({"size": list(s.obstacles.shape), **r}) + "\n")
-    print(json.dumps(dict(planner=args.planner, scenarios=len(rows), agents=args.agents,
-                          overlap_mean=round(float(np.mean([r["overlap"] for r in rows])), 4),
-                          time_save_mean=round(float(np.mean([r["time_save"] for r in rows])), 4),
-                          plan_ms_per_map=round(ms, 2))))
+        try:
+            with open(args.out, "w") as f:
+                f.write("".join(json.dumps({"size": list(s.obstacles.shape), **r}) + "\n" for s, r in zip(scenarios, rows)))
+        except OSError as e:
+            raise ValueError(f"--out {args.out}: cannot write ({e.strerror})") from None
+    print(f"{args.planner}: {len(rows)} scenario(s), {args.agents} agent(s) each, "
+          f"mean overlap {np.mean([r['overlap'] for r in rows]):.4f}, "
+          f"mean time-save factor {np.mean([r['time_save'] for r in rows]):.4f}, "
+          f"planning {ms:.2f} ms per map" + (f" -> {args.out}" if args.out else ""))
 
 
 if __name__ == "__main__":

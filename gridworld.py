@@ -7,7 +7,8 @@ is implemented once, vectorised over worlds and agents. Thin faces sit on top:
 - `GridWorldEnv`        Gymnasium Env, registered as "GridWorld-v0" (one world, one agent);
 - `GridWorldVectorEnv`  native Gymnasium VectorEnv (B worlds; with N > 1 agents every array
                         gets an agent axis, which is the batched multi-agent form for training);
-- `parallel_env(...)`   PettingZoo ParallelEnv (one world, N agents).
+- `GridWorldParallelEnv` PettingZoo ParallelEnv (one world, N agents; picklable), made by
+                        PettingZoo's factory `parallel_env(...)`.
 
 Conventions
 - Cells are indexed [row, col]; row 0 is North. Actions: 0 North, 1 South, 2 West, 3 East,
@@ -26,6 +27,8 @@ Conventions
   The map is a view of a channels-last buffer (torch reads it as channels_last). Frame
   stacking (3 frames in the dissertation) is left to the trainer's replay buffer, which stores
   each frame once and stacks at sample time; a single Env can use FrameStackObservation.
+  Networks read VIEW_SIZE, FRAME_FEATURES (last_action + out_of_bounds / OUT_OF_BOUNDS_SCALE,
+  built by `frame_features`) and BATTERY_FEATURES from here rather than hard-coding 41, 13, 100, 1.
 - Tabular observation (§5.3.1): 8 range readings r' in the order N, S, E, W, NE, NW, SE, SW.
 """
 from __future__ import annotations
@@ -33,6 +36,8 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import numbers
+import os
 import sys
 import time
 import zipfile
@@ -45,6 +50,7 @@ import numpy as np
 import yaml
 from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, VectorEnv
+from pettingzoo import ParallelEnv
 
 NORTH, SOUTH, WEST, EAST, WAIT = 0, 1, 2, 3, 4
 ACTION_DELTAS = np.array([[-1, 0], [1, 0], [0, -1], [0, 1], [0, 0]], dtype=np.int64)
@@ -52,10 +58,18 @@ POI, COVERED, OBSTACLE, AGENT = 0, 1, 2, 3  # channel indices of the deep observ
 SENSORS = ("full", "camera", "lidar")
 STRUCTURES = ("competitive", "cooperative", "size_invariant")
 OBSERVATIONS = ("deep", "tabular")
+STRUCTURED_FAMILIES = ("rooms", "corridors", "clutter", "maze")  # map families beyond Algorithm 9's random maps
+MAP_FAMILIES = ("random", *STRUCTURED_FAMILIES, "mixed")  # "mixed": one family drawn per map
 FREE_CHARS, BLOCKED_CHARS = set(".GS"), set("@OTW#")
+SETTING_KINDS = {"int": numbers.Integral, "float": numbers.Real, "bool": (bool, np.bool_),
+                 "str": (str, os.PathLike)}  # what EnvConfig.validate accepts per annotated type
 CODE = np.array([0xFF << (8 * ch) for ch in range(4)], np.uint32)  # channel bytes of a cell (little-endian)
 ONE_HOT = np.eye(5, dtype=np.float32)
 FIRST_STEP = np.array([[WAIT, NORTH, WAIT], [WEST, WAIT, EAST], [WAIT, SOUTH, WAIT]])  # by [dy+1, dx+1]
+VIEW_SIZE = 41  # default side V of the deep observation's window (§6.3.2, Fig. 6.8)
+FRAME_FEATURES = 5 + 4 * 2  # per stacked frame beside the map: last_action one-hot + out_of_bounds (§6.3.2.7)
+BATTERY_FEATURES = 1  # the battery enters the network once, not per frame
+OUT_OF_BOUNDS_SCALE = 100.0  # the networks read out_of_bounds (eq. 6.5 counts of rows and cells) divided by this
 
 
 # ----------------------------------------------------------------------------- configuration
@@ -88,6 +102,56 @@ class RewardParams:
 
 
 @dataclass
+class FamilyParams:
+    """Shape of the structured map families (EnvConfig.map_family, section "map families"). (min, max) pairs are
+    inclusive ranges drawn uniformly; YAML lists become tuples. Maps too small for a family's structure come out open."""
+
+    room_size: tuple[int, int] = (4, 8)
+    """rooms: room side in cells; a room longer than max is split by a wall, no part below min (if it fits)."""
+    door_width: tuple[int, int] = (1, 3)
+    """rooms: width in cells of the one door cut in each wall (at most half the wall)."""
+    passage_width: tuple[int, int] = (1, 3)
+    """corridors: width in cells of each passage (drawn per passage)."""
+    passage_gap: tuple[int, int] = (2, 4)
+    """corridors: thickness in cells of the rock between parallel passages."""
+    loop_fraction: float = 0.2
+    """corridors: fraction of the lattice links left out of the spanning tree opened anyway, closing loops."""
+    block_count: tuple[float, float] = (3.0, 10.0)
+    """clutter: furniture blocks per 100 map cells (fewer when no more fit)."""
+    block_size: tuple[int, int] = (1, 4)
+    """clutter: side in cells of each rectangular block (height and width drawn apart)."""
+    maze_width: tuple[int, int] = (1, 2)
+    """maze: corridor width in cells (one per map; walls are 1 cell thick)."""
+    braid: float = 0.5
+    """maze: fraction of the perfect maze's dead ends knocked through to a neighbour, closing loops."""
+
+    def __post_init__(self):
+        for f in dataclasses.fields(self):  # YAML and JSON give lists: keep pairs hashable and comparable
+            if isinstance(getattr(self, f.name), list):
+                setattr(self, f.name, tuple(getattr(self, f.name)))
+
+    def validate(self) -> None:
+        def bad(msg):
+            raise ValueError(f"invalid map family parameters: {msg}")
+
+        def number(v):
+            return isinstance(v, numbers.Real) and not isinstance(v, (bool, np.bool_))
+
+        for name, low in (("room_size", 1), ("door_width", 1), ("passage_width", 1), ("passage_gap", 1),
+                          ("block_count", 0), ("block_size", 1), ("maze_width", 1)):
+            r = getattr(self, name)
+            if not (isinstance(r, (tuple, list)) and len(r) == 2 and all(number(v) for v in r)):
+                bad(f"{name} must be a (min, max) pair of numbers, got {r!r}")
+            if name != "block_count" and not all(float(v).is_integer() for v in r):
+                bad(f"{name} must hold whole cell counts, got {r!r}")
+            if not low <= r[0] <= r[1]:
+                bad(f"{name} needs {low} <= min <= max, got {tuple(r)}")
+        for name in ("loop_fraction", "braid"):
+            if not (number(getattr(self, name)) and 0.0 <= getattr(self, name) <= 1.0):
+                bad(f"{name} must be a number in [0, 1], got {getattr(self, name)!r}")
+
+
+@dataclass
 class EnvConfig:
     """Environment configuration; field names follow Table 4.1."""
 
@@ -114,12 +178,22 @@ class EnvConfig:
     sensor_failure: float = 0.0
     faulty_agent_step: int | None = None
     faulty_agent: int = -1
-    view_size: int = 41
+    view_size: int = VIEW_SIZE
     edge_compression: bool = True
     observation: str = "deep"
     reward: RewardParams = field(default_factory=RewardParams)
     name: str = ""
     base_steps: int = 0
+    map_family: str = "random"
+    """How random maps are drawn (section "map families"): "random" is Algorithm 9 (number_obstacles cells
+    scattered, obstacles_random); "rooms", "corridors", "clutter" and "maze" draw structured maps shaped by
+    `family` and ignore number_obstacles/obstacles_random (the structure sets the obstacle density); "mixed"
+    draws one family per map by map_family_weights, number_obstacles applying to its "random" maps."""
+    map_family_weights: dict[str, float] | None = None
+    """mixed only: {family: weight >= 0} over random, rooms, corridors, clutter, maze (absent = 0); None = uniform
+    over all five."""
+    family: FamilyParams = field(default_factory=FamilyParams)
+    """Parameters of the structured families (YAML: `family: {room_size: [4, 8], braid: 0.3}`)."""
 
     @classmethod
     def from_dict(cls, d: dict) -> EnvConfig:
@@ -134,15 +208,33 @@ class EnvConfig:
             if bad:
                 raise ValueError(f"unknown reward setting(s): {sorted(bad)}")
             d["reward"] = RewardParams(**d["reward"])
+        if not isinstance(d.get("family", FamilyParams()), (dict, FamilyParams)):
+            raise ValueError(f"family must be a mapping of FamilyParams fields, got {d['family']!r}")
+        if isinstance(d.get("family"), dict):
+            bad = set(d["family"]) - {f.name for f in dataclasses.fields(FamilyParams)}
+            if bad:
+                raise ValueError(f"unknown map family setting(s): {sorted(bad)}")
+            d["family"] = FamilyParams(**d["family"])
         return cls(**d)
 
     def replace(self, **changes) -> EnvConfig:
-        return EnvConfig.from_dict({**dataclasses.asdict(self), "reward": self.reward, **changes})
+        return EnvConfig.from_dict({**dataclasses.asdict(self), "reward": self.reward, "family": self.family, **changes})
 
     def validate(self) -> None:
         def bad(msg):
             raise ValueError(f"invalid environment configuration: {msg}")
 
+        if not isinstance(self.reward, RewardParams):
+            bad(f"reward must be RewardParams, got {self.reward!r}")
+        if not isinstance(self.family, FamilyParams):
+            bad(f"family must be FamilyParams, got {self.family!r}")
+        for settings in (self, self.reward):
+            for f in dataclasses.fields(settings):
+                value, kind = getattr(settings, f.name), f.type.removesuffix(" | None")
+                if value is None and f.type.endswith(" | None") or kind not in SETTING_KINDS:
+                    continue
+                if not isinstance(value, SETTING_KINDS[kind]) or (kind in ("int", "float") and isinstance(value, bool)):
+                    bad(f"{f.name} must be {'an' if kind == 'int' else 'a'} {kind}, got {value!r}")
         if self.sensor not in SENSORS:
             bad(f"sensor must be one of {SENSORS}, got {self.sensor!r}")
         if self.observation not in OBSERVATIONS:
@@ -165,23 +257,42 @@ class EnvConfig:
             bad(f"view_size must be odd and >= 5, got {self.view_size}")
         if self.number_points_of_interest < 0 or self.battery_factor <= 0:
             bad("number_points_of_interest must be >= 0 and battery_factor > 0")
+        if self.number_obstacles < 0 or self.base_steps < 0:
+            bad(f"number_obstacles and base_steps must be >= 0, got {self.number_obstacles} and {self.base_steps}")
+        if not -self.number_agents <= self.faulty_agent < self.number_agents:
+            bad(f"faulty_agent {self.faulty_agent} is not one of the {self.number_agents} agent(s) (or -1, the last)")
+        if self.faulty_agent_step is not None and self.faulty_agent_step < 0:
+            bad(f"faulty_agent_step must be >= 0, got {self.faulty_agent_step}")
         if self.map_configuration is None and self.dataset_path is None:
             smallest = self.min_size if self.random_size else self.size
             if self.number_agents > smallest ** 2 - 1:
                 bad(f"{self.number_agents} agent(s) do not fit a {smallest}x{smallest} map with a cell to cover")
-            if self.number_obstacles < 0 or self.number_obstacles > self.size ** 2 - self.number_agents - 1:
+            if self.number_obstacles > self.size ** 2 - self.number_agents - 1:
                 bad(f"{self.number_obstacles} obstacles and {self.number_agents} agent(s) do not fit a "
                     f"{self.size}x{self.size} map with a cell to cover")  # smaller maps draw fewer (Tables 6.2, 7.2)
         if not self.starting_position_random and self.starting_position is None:
             bad("starting_position_random is False but no starting_position is given")
+        if self.map_family not in MAP_FAMILIES:
+            bad(f"map_family must be one of {MAP_FAMILIES}, got {self.map_family!r}")
+        weights = self.map_family_weights
+        if weights is not None:
+            if self.map_family != "mixed":
+                bad(f"map_family_weights needs map_family 'mixed', got {self.map_family!r}")
+            if not isinstance(weights, dict) or set(weights) - set(MAP_FAMILIES[:-1]):
+                bad(f"map_family_weights must map some of {MAP_FAMILIES[:-1]} to weights, got {weights!r}")
+            if not all(isinstance(v, numbers.Real) and not isinstance(v, bool) and math.isfinite(v) and v >= 0
+                       for v in weights.values()) or not sum(weights.values()) > 0:
+                bad(f"map_family_weights must be finite weights >= 0, not all 0, got {weights!r}")
+        self.family.validate()
 
 
 def load_config(path: str) -> dict[str, EnvConfig]:
     """Named environments from a YAML file (curriculum stages, Table 4.1 keys).
 
     The file is either a mapping name -> settings or a list of settings each with a `name`."""
+    path = os.fspath(path)
     try:
-        with open(path) as f:
+        with open(path, encoding="utf-8") as f:
             data = yaml.safe_load(f)
     except OSError as e:
         raise ValueError(f"{path}: cannot read config ({e.strerror})") from None
@@ -192,15 +303,16 @@ def load_config(path: str) -> dict[str, EnvConfig]:
     if isinstance(data, list):
         if not all(isinstance(d, dict) for d in data):
             raise ValueError(f"{path}: every list item must be a mapping of settings")
-        data = {d.get("name", f"env{i + 1}"): d for i, d in enumerate(data)}
+        data = {str(d.get("name", f"env{i + 1}")): d for i, d in enumerate(data)}
     if not isinstance(data, dict) or not all(isinstance(v, dict) for v in data.values()):
         raise ValueError(f"{path}: expected a mapping of environment names to settings")
-    try:
-        configs = {name: EnvConfig.from_dict({"name": name, **d}) for name, d in data.items()}
-        for c in configs.values():
-            c.validate()
-    except (ValueError, TypeError) as e:
-        raise ValueError(f"{path}: {e}") from None
+    configs = {}
+    for name, d in data.items():
+        try:
+            configs[str(name)] = EnvConfig.from_dict({"name": str(name), **d})
+            configs[str(name)].validate()
+        except (ValueError, TypeError) as e:
+            raise ValueError(f"{path}: {name}: {e}") from None
     return configs
 
 
@@ -242,8 +354,9 @@ def _parse_rows(rows: list[str], path: str, first_line: int) -> Scenario:
 def load_map(path: str) -> Scenario:
     """Load a MovingAI `.map` file or a plain ASCII map (`.` free, `@`/`#` obstacle, `x` covered,
     digits 0-9 agent starts). Raises ValueError naming the file and the problem."""
+    path = os.fspath(path)
     try:
-        with open(path) as f:
+        with open(path, encoding="utf-8") as f:
             lines = f.read().splitlines()
     except OSError as e:
         raise ValueError(f"{path}: cannot read map ({e.strerror})") from None
@@ -358,16 +471,43 @@ def check_scenarios(scenarios: list[Scenario], where: str = "scenarios") -> None
 
 
 def load_dataset(path: str) -> list[Scenario]:
+    """Scenarios saved by save_dataset; raises ValueError naming the file for anything else (a
+    missing, truncated or foreign file, missing arrays, wrong shapes or types, unusable maps)."""
+    path = os.fspath(path)
+
+    def bad(problem):
+        return ValueError(f"{path}: not a gridworld dataset ({problem})")
+
+    if not os.path.isfile(path):
+        raise bad("no such file" if not os.path.exists(path) else "not a file")
+    if not zipfile.is_zipfile(path):
+        raise bad("not an .npz archive")
     try:
-        data = np.load(path)
-        obstacles, sizes, starts = data["obstacles"], data["sizes"], data["starts"]
-        covered = data["covered"] if "covered" in data else np.zeros_like(obstacles)
-    except (OSError, ValueError, KeyError, zipfile.BadZipFile, zlib.error) as e:
-        raise ValueError(f"{path}: not a gridworld dataset ({e})") from None
-    M = len(obstacles)
-    if (obstacles.ndim != 3 or sizes.shape != (M, 2) or starts.ndim != 3 or len(starts) != M
-            or starts.shape[-1:] != (2,) or covered.shape != obstacles.shape):
-        raise ValueError(f"{path}: not a gridworld dataset (arrays of inconsistent shapes)")
+        with np.load(path) as data:
+            arrays = {k: data[k] for k in ("obstacles", "sizes", "starts", "covered") if k in data.files}
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error) as e:
+        raise bad((str(e).splitlines() or [type(e).__name__])[0]) from None
+    missing = [k for k in ("obstacles", "sizes", "starts") if k not in arrays]
+    if missing:
+        raise bad(f"no {missing[0]!r} array")
+    obstacles, sizes, starts = arrays["obstacles"], arrays["sizes"], arrays["starts"]
+    covered = arrays.get("covered", np.zeros_like(obstacles))
+    if obstacles.ndim != 3 or sizes.ndim != 2 or starts.ndim != 3:
+        raise bad("arrays of inconsistent shapes")
+    M, H, W = obstacles.shape
+    if (sizes.shape != (M, 2) or len(starts) != M or starts.shape[-1:] != (2,) or covered.shape != obstacles.shape):
+        raise bad("arrays of inconsistent shapes")
+    if M == 0:
+        raise bad("no scenarios")
+    for name, a in (("obstacles", obstacles), ("covered", covered)):
+        if a.dtype != bool and not (a.dtype.kind in "iu" and np.isin(a, (0, 1)).all()):
+            raise bad(f"{name} must be boolean, got {a.dtype}")
+    for name, a in (("sizes", sizes), ("starts", starts)):
+        if a.dtype.kind not in "iu":
+            raise bad(f"{name} must be integers, got {a.dtype}")
+    if (sizes < 1).any() or (sizes[:, 0] > H).any() or (sizes[:, 1] > W).any():
+        raise bad(f"sizes must lie in 1..{H} x 1..{W}")
+    obstacles, covered = obstacles.astype(bool, copy=False), covered.astype(bool, copy=False)
     out = []
     for i, (h, w) in enumerate(sizes):  # one small copy per scenario
         st = starts[i][starts[i, :, 0] >= 0]
@@ -442,6 +582,293 @@ def _line_of_sight_table(r: int) -> tuple[np.ndarray, np.ndarray]:
     between = np.floor(offsets[:, None, :] * frac[..., None] + 0.5).astype(np.int64)
     between[k[None, :] >= n[:, None]] = 0
     return offsets, between
+
+
+# ----------------------------------------------------------------------------- map families
+# Structured maps beside Algorithm 9's random ones (EnvConfig.map_family, shaped by FamilyParams). A generator draws
+# k maps at once as a (k, H, W) obstacle array, map b of sides hw[b] in the top-left corner and True outside it; the
+# free cells of each form one 4-connected region by construction, so Algorithm 10 removes nothing. Loops run over
+# partition levels, lattice merge rounds or placement rounds, never over cells or worlds.
+def structured_obstacles(family: str, rng: np.random.Generator, hw: np.ndarray, H: int, W: int,
+                         params: FamilyParams | None = None) -> np.ndarray:
+    """Obstacles (k, H, W) of k maps of a structured family with sides hw (k, 2), True outside each map.
+
+    Maps too small for the family's structure come out open; every map keeps >= 2 free cells, all 4-connected."""
+    params = FamilyParams() if params is None else params
+    params.validate()
+    if family not in STRUCTURED_FAMILIES:
+        raise ValueError(f"unknown structured map family {family!r}, expected one of {STRUCTURED_FAMILIES}")
+    hw = np.asarray(hw, np.int64).reshape(-1, 2)
+    if len(hw) and ((hw < 2).any() or (hw[:, 0] > H).any() or (hw[:, 1] > W).any()):
+        raise ValueError(f"map sides must be >= 2 and fit the {H}x{W} canvas, got {hw.min(0).tolist()}..{hw.max(0).tolist()}")
+    inmap = (np.arange(H)[None, :, None] < hw[:, 0, None, None]) & (np.arange(W)[None, None, :] < hw[:, 1, None, None])
+    if not len(hw):
+        return ~inmap
+    whole = {f.name: tuple(int(v) for v in getattr(params, f.name)) for f in dataclasses.fields(params)
+             if isinstance(getattr(params, f.name), (tuple, list)) and f.name != "block_count"}
+    params = dataclasses.replace(params, **whole)  # 4.0 from YAML indexes like 4
+    walls = {"rooms": _rooms, "corridors": _corridors, "clutter": _clutter, "maze": _maze}[family](rng, hw, H, W, params)
+    walls &= inmap
+    too_few = (inmap & ~walls).sum((1, 2)) < 2
+    walls[too_few] = False  # safety net: a map without room for an agent and a cell to cover is drawn open
+    return walls | ~inmap
+
+
+def _uniform_int(rng, lo, hi) -> np.ndarray:
+    """One integer in [lo, hi] per entry of the broadcast arrays lo, hi (inclusive)."""
+    lo, hi = np.broadcast_arrays(np.asarray(lo, np.int64), np.asarray(hi, np.int64))
+    return rng.integers(lo, hi + 1) if lo.size else lo.copy()
+
+
+def _paint_rects(k: int, H: int, W: int, b, y0, y1, x0, x1) -> np.ndarray:
+    """(k, H, W) bool: cells inside any rectangle [y0, y1) x [x0, x1) of world b (flat arrays; clipped to the canvas)."""
+    b, y0, y1, x0, x1 = (np.ravel(a).astype(np.int64) for a in (b, y0, y1, x0, x1))
+    y0, y1, x0, x1 = np.clip(y0, 0, H), np.clip(y1, 0, H), np.clip(x0, 0, W), np.clip(x1, 0, W)
+    keep = (y1 > y0) & (x1 > x0)
+    b, y0, y1, x0, x1 = b[keep], y0[keep], y1[keep], x0[keep], x1[keep]
+    base = b * ((H + 1) * (W + 1))
+    corners = np.concatenate([base + y0 * (W + 1) + x0, base + y0 * (W + 1) + x1,
+                              base + y1 * (W + 1) + x0, base + y1 * (W + 1) + x1])
+    signs = np.repeat(np.array([1.0, -1.0, -1.0, 1.0]), len(b))
+    diff = np.bincount(corners, signs, k * (H + 1) * (W + 1)).reshape(k, H + 1, W + 1)  # 2-D difference array
+    return diff.cumsum(1).cumsum(2)[:, :H, :W] > 0.5
+
+
+def _lattice(NH: int, NW: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Links of an NH x NW lattice: endpoints u, v (node = i * NW + j) and orientation (True = horizontal, v right of u)."""
+    node = np.arange(NH * NW).reshape(NH, NW)
+    u = np.concatenate([node[:, :-1].ravel(), node[:-1, :].ravel()])
+    v = np.concatenate([node[:, 1:].ravel(), node[1:, :].ravel()])
+    horizontal = np.arange(len(u)) < NH * (NW - 1)
+    return u, v, horizontal
+
+
+def _random_spanning_tree(rng, u: np.ndarray, v: np.ndarray, usable: np.ndarray, n: int) -> np.ndarray:
+    """(k, E) bool: a random minimum spanning forest of the usable links of each world (Boruvka with random weights).
+
+    Batched Boruvka: every round each component takes its lightest outgoing link and components merge by pointer
+    jumping, so the loop runs O(log n) rounds for all k worlds at once. Random-weight MSTs make Kruskal-like mazes
+    (many short dead ends), not uniform spanning trees; Wilson/Aldous-Broder would be uniform but are sequential."""
+    k, E = usable.shape
+    weight = rng.integers(0, 1 << 40, (k, E)) * E + np.arange(E)  # distinct within a world: no ties, so no cycles
+    big = np.iinfo(np.int64).max
+    weight[~usable] = big
+    label = np.arange(k * n).reshape(k, n)  # component ids are global (world * n + node) so worlds never mix
+    tree = np.zeros((k, E), bool)
+    while True:
+        lu, lv = label[:, u], label[:, v]
+        cross = usable & (lu != lv)
+        if not cross.any():
+            return tree
+        w = np.where(cross, weight, big)
+        best = np.full(k * n, big)
+        np.minimum.at(best, lu[cross], w[cross])
+        np.minimum.at(best, lv[cross], w[cross])
+        by_u, by_v = cross & (w == best[lu]), cross & (w == best[lv])
+        tree |= by_u | by_v
+        parent = np.arange(k * n)
+        parent[lu[by_u]] = lv[by_u]
+        parent[lv[by_v]] = lu[by_v]
+        mutual = (parent[parent] == np.arange(k * n)) & (np.arange(k * n) < parent)
+        parent[mutual] = np.flatnonzero(mutual)  # two components that chose the same link: the smaller id is the root
+        while True:
+            jumped = parent[parent]
+            if np.array_equal(jumped, parent):
+                break
+            parent = jumped
+        label = parent[label]
+
+
+def _carve_links(k, H, W, Y, X, u, v, horizontal, open_, width) -> np.ndarray:
+    """(k, H, W) bool: open lattice links carved as passages from node (Y_i, X_j) to the next node, `width` thick."""
+    NW = X.shape[1]
+    iu, ju, iv, jv = u // NW, u % NW, v // NW, v % NW
+    wdt = np.broadcast_to(width, open_.shape)[open_]
+    bi = np.broadcast_to(np.arange(k)[:, None], open_.shape)
+    yu, xu = Y[bi, iu[None]][open_], X[bi, ju[None]][open_]
+    yv, xv = Y[bi, iv[None]][open_], X[bi, jv[None]][open_]
+    horiz = np.broadcast_to(horizontal, open_.shape)[open_]
+    y1 = np.where(horiz, yu + wdt, yv + wdt)  # top-left aligned: a passage covers both endpoint nodes' corners
+    x1 = np.where(horiz, xv + wdt, xu + wdt)
+    return _paint_rects(k, H, W, bi[open_], yu, y1, xu, x1)
+
+
+def _incident(u: np.ndarray, v: np.ndarray, horizontal: np.ndarray, n: int) -> np.ndarray:
+    """(n, 4) link ids touching each node (-1 where none): its links to the right, left, below and above."""
+    inc = np.full((n, 4), -1)
+    e = np.arange(len(u))
+    slot = np.where(horizontal, 0, 2)  # horizontal links fill slots 0/1, vertical ones 2/3
+    inc[u, slot] = e
+    inc[v, slot + 1] = e
+    return inc
+
+
+def _rooms(rng, hw, H, W, p: FamilyParams) -> np.ndarray:
+    """Binary space partition: split every room longer than room_size[1] by a 1-cell wall at a random position keeping
+    both parts >= room_size[0] (or as large as fits), then cut one door per wall where it joins free cells on both sides."""
+    k = len(hw)
+    rmin, rmax = p.room_size
+    y0, x0 = np.zeros((k, 1), np.int64), np.zeros((k, 1), np.int64)
+    y1, x1 = hw[:, :1].copy(), hw[:, 1:].copy()
+    alive = np.ones((k, 1), bool)
+    walls = []  # per level: (world, horizontal?, position, start, end) of each new wall
+    while True:
+        hgt, wid = y1 - y0, x1 - x0
+        long_side = np.maximum(hgt, wid)
+        split = alive & (long_side > rmax) & (long_side >= 3)
+        if not split.any():
+            break
+        across = (hgt > wid) | ((hgt == wid) & (rng.random(hgt.shape) < 0.5))  # split the longer side: squarish rooms
+        size = np.where(across, hgt, wid)
+        m = np.clip(np.minimum(rmin, (size - 1) // 2), 1, None)  # smallest part: room_size[0], or what fits
+        cut = _uniform_int(rng, m, np.maximum(size - 1 - m, m))  # wall offset from the room's start
+        start = np.where(across, y0, x0)
+        pos = start + cut
+        bi = np.broadcast_to(np.arange(k)[:, None], split.shape)
+        walls.append((bi[split], across[split], pos[split], np.where(across, x0, y0)[split], np.where(across, x1, y1)[split]))
+        # the first part keeps the slot, the second part goes to a new slot
+        ny0 = np.where(split & ~across, y0, np.where(split, pos + 1, y0))
+        nx0 = np.where(split & across, x0, np.where(split, pos + 1, x0))
+        a_y1 = np.where(split & across, pos, y1)
+        a_x1 = np.where(split & ~across, pos, x1)
+        y0, x0, y1, x1 = (np.concatenate([a, c], 1) for a, c in ((y0, ny0), (x0, nx0), (a_y1, y1), (a_x1, x1)))
+        alive = np.concatenate([alive, split], 1)
+        order = np.argsort(~alive, 1, kind="stable")[:, :alive.sum(1).max()]  # compact: live rooms first
+        y0, x0, y1, x1, alive = (np.take_along_axis(a, order, 1) for a in (y0, x0, y1, x1, alive))
+    if not walls:
+        return np.zeros((k, H, W), bool)
+    b, horiz, pos, lo, hi = (np.concatenate(c) for c in zip(*walls))
+    wall = _paint_rects(k, H, W, b, np.where(horiz, pos, lo), np.where(horiz, pos + 1, hi),
+                  np.where(horiz, lo, pos), np.where(horiz, hi, pos + 1))
+    # door candidates: wall cells whose two cross neighbours are free (never a T-junction, so it joins both sides)
+    L = max(H, W)
+    t = lo[:, None] + np.arange(L)
+    inside = t < hi[:, None]
+    hz, pc, bb = horiz[:, None], pos[:, None], b[:, None]
+
+    def beside(offset):  # wall map at the cells `offset` across the wall from each of its cells
+        r = np.clip(np.where(hz, pc + offset, t), 0, H - 1)
+        c = np.clip(np.where(hz, t, pc + offset), 0, W - 1)
+        return wall[bb, r, c]
+
+    ok = inside & ~beside(-1) & ~beside(1)
+    d = np.minimum(_uniform_int(rng, np.full(len(b), p.door_width[0]), np.full(len(b), p.door_width[1])),
+                   np.maximum((hi - lo) // 2, 1))  # at most half the wall: it stays a wall, not a stub
+    cs = np.concatenate([np.zeros((len(b), 1), np.int64), ok.cumsum(1)], 1)
+    end = np.minimum(np.arange(L)[None] + d[:, None], L)
+    run = (np.take_along_axis(cs, end, 1) - cs[:, :-1] == d[:, None]) & ok  # d door cells in a row, all joining
+    d = np.where(run.any(1), d, 1)  # no room for a wide door between T-junctions: a 1-cell one (first cell always fits)
+    run = np.where(run.any(1)[:, None], run, ok)
+    start = lo + np.argmax(np.where(run, rng.random(run.shape), -1.0), 1)
+    door = _paint_rects(k, H, W, b, np.where(horiz, pos, start), np.where(horiz, pos + 1, start + d),
+                  np.where(horiz, start, pos), np.where(horiz, start + d, pos + 1))
+    return wall & ~door
+
+
+def _corridors(rng, hw, H, W, p: FamilyParams) -> np.ndarray:
+    """Passages on a jittered coarse lattice (lines passage_width[1] + passage_gap apart) following a random spanning
+    tree, each passage with its own width, plus loop_fraction of the spare links; everything else is rock."""
+    k = len(hw)
+    wmin, wmax = p.passage_width
+    gmin, gmax = p.passage_gap
+
+    def lines(side, n):
+        gaps = _uniform_int(rng, np.full((k, n), wmax + gmin), np.full((k, n), wmax + gmax))
+        pos = np.concatenate([np.zeros((k, 1), np.int64), gaps[:, :-1].cumsum(1)], 1)
+        ok = (pos + wmax <= side[:, None]) | (np.arange(n) == 0)  # the first line always exists (clipped if narrow)
+        last = np.where(ok, pos, 0).max(1)
+        spare = np.maximum(side - wmax - last, 0)
+        m0 = _uniform_int(rng, 0, np.minimum(gmin, spare))  # a little rock at either border, at random
+        m1 = _uniform_int(rng, 0, np.minimum(gmin, spare - m0))
+        scale = np.where(last > 0, (side - wmax - m0 - m1) / np.maximum(last, 1), 1.0)  # >= 1: fill the side
+        return m0[:, None] + np.floor(pos * scale[:, None] + 0.5).astype(np.int64), ok
+
+    NH, NW = (max(S - wmax, 0) // (wmax + gmin) + 1 for S in (H, W))
+    Y, vy = lines(hw[:, 0], NH)
+    X, vx = lines(hw[:, 1], NW)
+    u, v, horizontal = _lattice(NH, NW)
+    node_ok = (vy[:, :, None] & vx[:, None, :]).reshape(k, -1)
+    usable = node_ok[:, u] & node_ok[:, v]
+    open_ = _random_spanning_tree(rng, u, v, usable, NH * NW)
+    open_ |= usable & (rng.random(usable.shape) < p.loop_fraction)
+    width = _uniform_int(rng, np.full(open_.shape, wmin), np.full(open_.shape, wmax))
+    free = _carve_links(k, H, W, Y, X, u, v, horizontal, open_, width)
+    return ~free & (node_ok.sum(1) >= 2)[:, None, None]  # a single lattice node has no passage: leave the map open
+
+
+def _clutter(rng, hw, H, W, p: FamilyParams) -> np.ndarray:
+    """Rectangular blocks at random spots of an open room, never touching each other (not even diagonally), so
+    each obstacle component is one rectangle and no chain of blocks can enclose free cells."""
+    k = len(hw)
+    h, w = hw[:, 0], hw[:, 1]
+    rate = p.block_count[0] + rng.random(k) * (p.block_count[1] - p.block_count[0])
+    target = np.round(rate * h * w / 100).astype(np.int64)
+    A = int(target.max()) if k else 0
+    by, bx, bh, bw = (np.zeros((k, A), np.int64) for _ in range(4))
+    count = np.zeros(k, np.int64)
+    lo = np.minimum(p.block_size[0], hw - 1)  # a block never spans a whole side, so it cannot cut the map in two
+    hi = np.minimum(p.block_size[1], hw - 1)
+    for _ in range(12):  # placement rounds: the map fills up, so later rounds accept fewer candidates
+        need = target - count
+        if A == 0 or need.max() <= 0:
+            break
+        M = int(min(need.max() + 4, 64))
+        ch = _uniform_int(rng, np.broadcast_to(lo[:, :1], (k, M)), np.broadcast_to(hi[:, :1], (k, M)))
+        cw = _uniform_int(rng, np.broadcast_to(lo[:, 1:], (k, M)), np.broadcast_to(hi[:, 1:], (k, M)))
+        cy, cx = _uniform_int(rng, 0, h[:, None] - ch), _uniform_int(rng, 0, w[:, None] - cw)
+
+        def touch(ay, ax, ah, aw, qy, qx, qh, qw):  # 8-adjacent or overlapping: no free cell between them
+            return (ay <= qy + qh) & (qy <= ay + ah) & (ax <= qx + qw) & (qx <= ax + aw)
+
+        placed = np.arange(A)[None, None, :] < count[:, None, None]
+        clash = (touch(cy[..., None], cx[..., None], ch[..., None], cw[..., None], by[:, None], bx[:, None], bh[:, None],
+                       bw[:, None]) & placed).any(2)
+        pair = touch(cy[:, :, None], cx[:, :, None], ch[:, :, None], cw[:, :, None], cy[:, None], cx[:, None], ch[:, None],
+                     cw[:, None])
+        ok = ~clash
+        earlier = np.tril(np.ones((M, M), bool), -1)  # candidate j yields to any earlier non-clashing candidate it touches
+        ok &= ~(pair & earlier & ok[:, None, :]).any(2)
+        ok &= ok.cumsum(1) <= need[:, None]
+        slot = count[:, None] + ok.cumsum(1) - 1
+        bi = np.broadcast_to(np.arange(k)[:, None], ok.shape)
+        for dst, src in ((by, cy), (bx, cx), (bh, ch), (bw, cw)):
+            dst[bi[ok], slot[ok]] = src[ok]
+        count += ok.sum(1)
+    used = np.arange(A)[None] < count[:, None]
+    bi = np.broadcast_to(np.arange(k)[:, None], used.shape)
+    return _paint_rects(k, H, W, bi[used], by[used], (by + bh)[used], bx[used], (bx + bw)[used])
+
+
+def _maze(rng, hw, H, W, p: FamilyParams) -> np.ndarray:
+    """Braided maze: a random spanning tree on a lattice of c x c cells with 1-cell walls (c in maze_width), then
+    `braid` of its dead ends knocked through to a random neighbour they were not joined to, which closes loops."""
+    k = len(hw)
+    c = _uniform_int(rng, np.full(k, p.maze_width[0]), np.full(k, p.maze_width[1]))
+    c = np.clip(c, 1, np.maximum((hw.min(1) - 1) // 2, 1))  # narrow the corridors until 2 x 2 cells fit
+    pitch = c + 1
+    nh, nw = (hw[:, 0] + 1) // pitch, (hw[:, 1] + 1) // pitch
+    tiny = (nh < 2) | (nw < 2)  # fewer than 2 x 2 maze cells: leave the map open
+    NH, NW = int(nh.max()), int(nw.max())
+    oy = _uniform_int(rng, 0, hw[:, 0] - (nh * pitch - 1))  # spare rows/cols (< pitch) split between the borders
+    ox = _uniform_int(rng, 0, hw[:, 1] - (nw * pitch - 1))
+    Y = oy[:, None] + np.arange(NH) * pitch[:, None]
+    X = ox[:, None] + np.arange(NW) * pitch[:, None]
+    u, v, horizontal = _lattice(NH, NW)
+    node_ok = ((np.arange(NH) < nh[:, None])[:, :, None] & (np.arange(NW) < nw[:, None])[:, None, :]).reshape(k, -1)
+    usable = node_ok[:, u] & node_ok[:, v]
+    open_ = _random_spanning_tree(rng, u, v, usable, NH * NW)
+    inc = _incident(u, v, horizontal, NH * NW)
+    has = inc >= 0
+    incc = np.where(has, inc, 0)
+    deg = (open_[:, incc] & has).sum(2)
+    dead = (deg == 1) & node_ok & (rng.random(deg.shape) < p.braid)
+    closed = usable[:, incc] & ~open_[:, incc] & has
+    pick = np.argmax(np.where(closed, rng.random(closed.shape), -1.0), 2)  # a random closed wall of each dead end
+    knock = dead & closed.any(2)
+    bi, ni = np.nonzero(knock)
+    open_[bi, incc[ni, pick[bi, ni]]] = True
+    free = _carve_links(k, H, W, Y, X, u, v, horizontal, open_, c[:, None])
+    return ~free & ~tiny[:, None, None]
 
 
 # ----------------------------------------------------------------------------- the core
@@ -537,13 +964,8 @@ class GridWorldCore:
         for k, v in keep.items():
             getattr(self, k)[:, c:c + v.shape[1], c:c + v.shape[2]] = v
         self.canvas = np.zeros((B, Ph, Pw, 4), np.uint8)
-        self.canvas32 = self.canvas.view(np.uint32).reshape(-1)
-        self.views = {k: getattr(self, k).reshape(-1) for k in ("obstacle", "seen", "covered", "occupied")}
+        self._bind_views()
         self.delta = np.array([-Pw, Pw, -1, 1, 0], np.int64)
-        n_starts = B * Ph * Pw - (self.V - 1) * (Pw + 1)
-        s = self.canvas32.strides[0]
-        self.windows = np.lib.stride_tricks.as_strided(
-            self.canvas32, (n_starts, self.V, self.V), (s, Pw * s, s), writeable=False)
         if old is None:
             self.pos = np.zeros((B, N), np.int64)
             self.active = np.zeros((B, N), bool)
@@ -559,6 +981,22 @@ class GridWorldCore:
             self.pos = np.where(self.active, self._flat(b, old[0][..., 0], old[0][..., 1]),
                                 self._flat(b, -c, -c))  # absent agents stay parked
             self._paint_worlds(np.arange(B))
+
+    def _bind_views(self) -> None:
+        """The flat views of the cell arrays and the strided observation windows over the canvas."""
+        B, Ph, Pw, V = self.B, self.Ph, self.Pw, self.V
+        self.canvas32 = self.canvas.view(np.uint32).reshape(-1)
+        self.views = {k: getattr(self, k).reshape(-1) for k in ("obstacle", "seen", "covered", "occupied")}
+        s = self.canvas32.strides[0]
+        self.windows = np.lib.stride_tricks.as_strided(
+            self.canvas32, (B * Ph * Pw - (V - 1) * (Pw + 1), V, V), (s, Pw * s, s), writeable=False)
+
+    def __getstate__(self) -> dict:
+        return {k: v for k, v in self.__dict__.items() if k not in ("canvas32", "views", "windows")}
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)  # pickle copies views apart from their arrays: bind them anew
+        self._bind_views()
 
     def _flat(self, b, y, x) -> np.ndarray:
         """Flat canvas index of map cell [y, x] of world b."""
@@ -603,8 +1041,14 @@ class GridWorldCore:
             start_mask[np.arange(k)[:, None], full[..., 0], full[..., 1]] = act
             return self._init_worlds(w, pad, hw.astype(np.int64), full, act, start_mask, cov)
         if self.scenarios is None:
+            idle = 0  # draws in a row that gave no usable map
             while len(self.pool[0]) < k:  # maps are drawn in batches: one reset is cheap
+                before = len(self.pool[0])
                 self._draw_maps(max(64, k))
+                idle = 0 if len(self.pool[0]) > before else idle + 1
+                if idle == 20:
+                    raise ValueError(f"map_family {cfg.map_family!r}: no usable map in 20 draws of {max(64, k)} (too "
+                                     "many agents for the free cells, or a starting_position always walled in)")
             drawn = [a[:k] for a in self.pool]
             self.pool = [a[k:] for a in self.pool]
             return self._init_worlds(w, *drawn, np.zeros((k, H, W), bool))
@@ -656,8 +1100,9 @@ class GridWorldCore:
         return np.broadcast_to(st, (k, self.N, 2)).copy()
 
     def _draw_maps(self, k: int) -> None:
-        """Algorithm 9 for k random worlds at once: size, starts, obstacles, then Algorithm 10
-        (cells unreachable from agent 0 become obstacles); adds the usable ones to the pool."""
+        """Algorithm 9 for k random worlds at once: size, the obstacles of a structured map family (if any),
+        starts on free cells, Algorithm 9's random obstacles (family "random"), then Algorithm 10 (cells
+        unreachable from agent 0 become obstacles); adds the usable ones to the pool."""
         cfg, rng, H, W, N = self.config, self.rng, self.H, self.W, self.N
         bidx = np.arange(k)[:, None]
         active = self._active(k)
@@ -665,21 +1110,37 @@ class GridWorldCore:
         hw = np.stack([side, side], 1)
         obstacle = ~((np.arange(H)[None, :, None] < side[:, None, None]) &
                      (np.arange(W)[None, None, :] < side[:, None, None]))
+        fixed_starts = not cfg.starting_position_random and cfg.starting_position is not None
+        if cfg.map_family == "mixed":  # one family per map, index into MAP_FAMILIES (0 = random)
+            weights = cfg.map_family_weights or dict.fromkeys(MAP_FAMILIES[:-1], 1.0)
+            p = np.array([weights.get(f, 0.0) for f in MAP_FAMILIES[:-1]], float)
+            family = rng.choice(len(p), k, p=p / p.sum())
+        else:
+            family = np.full(k, MAP_FAMILIES.index(cfg.map_family))
+        for f, name in enumerate(STRUCTURED_FAMILIES, 1):
+            if (family == f).any():
+                obstacle[family == f] = structured_obstacles(name, rng, hw[family == f], H, W, cfg.family)
+        if fixed_starts and family.any():  # a fixed start on a wall or block: the cell is cleared (walled in: dropped below)
+            st = np.atleast_2d(np.asarray(cfg.starting_position, np.int64))
+            y, x = st[(st >= 0).all(1) & (st[:, 0] < H) & (st[:, 1] < W)].T
+            obstacle[:, y, x] &= (y >= hw[:, :1]) | (x >= hw[:, 1:])  # outside the map stays blocked (_starts says so)
         starts = self._starts(obstacle, hw)
         start_mask = np.zeros((k, H, W), bool)
         start_mask[bidx, starts[..., 0], starts[..., 1]] = active
-        n_obs = np.minimum(cfg.number_obstacles, side * side - N - 1)
-        if cfg.obstacles_random:
-            n_obs = rng.integers(0, n_obs + 1)
-        keys = rng.random((k, H * W))
-        keys[(obstacle | start_mask).reshape(k, -1)] = np.inf
-        rank = np.argsort(np.argsort(keys, 1), 1).reshape(k, H, W)
-        obstacle |= rank < n_obs[:, None, None]
+        scatter = family == 0  # Algorithm 9's obstacles: number_obstacles random cells, never on a start
+        if scatter.any():
+            ks = int(scatter.sum())
+            n_obs = np.minimum(cfg.number_obstacles, side[scatter] * side[scatter] - N - 1)
+            if cfg.obstacles_random:
+                n_obs = rng.integers(0, n_obs + 1)
+            keys = rng.random((ks, H * W))
+            keys[(obstacle[scatter] | start_mask[scatter]).reshape(ks, -1)] = np.inf
+            rank = np.argsort(np.argsort(keys, 1), 1).reshape(ks, H, W)
+            obstacle[scatter] |= rank < n_obs[:, None, None]
         first = np.zeros_like(start_mask)
         first[np.arange(k), starts[:, 0, 0], starts[:, 0, 1]] = True
         obstacle |= ~_flood(~obstacle, first)
         lost = active & obstacle[bidx, starts[..., 0], starts[..., 1]]
-        fixed_starts = not cfg.starting_position_random and cfg.starting_position is not None
         if lost.any() and not fixed_starts:  # agents walled off: move them to agent 0's region
             start_mask &= ~obstacle
             spare = self._random_cells(~obstacle & ~start_mask, N)
@@ -877,6 +1338,29 @@ class GridWorldCore:
         if rp.scale_by_area:
             r = (r / (self.hw[:, 0:1] * self.hw[:, 1:2])).astype(np.float32)
         return r if self.all_active else np.where(self.active, r, np.float32(0))
+
+    WORLD_ARRAYS = ("obstacle", "seen", "covered", "occupied", "canvas", "pos", "active", "last_action",
+                    "frozen", "hw", "battery", "budget", "steps", "new_cells", "agent_moves", "n_poi_start",
+                    "n_free", "remaining")  # every per-world array (leading axis B): copy_worlds copies them all
+
+    def copy_worlds(self, src, dst, source: GridWorldCore | None = None) -> None:
+        """Copy the full state of worlds src[i] (of `source`, this core by default) into worlds dst[i]
+        of this core: map, coverage, known map, observation canvas, agents, counters, battery; the
+        copies then step exactly as their originals would (e.g. lookahead planning). dst must be
+        distinct; `source` must have this core's geometry (map size, view size, agents)."""
+        source = self if source is None else source
+        src, dst = np.asarray(src, np.int64).ravel(), np.asarray(dst, np.int64).ravel()
+        if len(src) != len(dst) or len(np.unique(dst)) != len(dst):
+            raise ValueError(f"copy_worlds needs one distinct destination per source, got {len(src)} "
+                             f"source(s) and {len(dst)} destination(s)")
+        if (source.H, source.W, source.N, source.c) != (self.H, self.W, self.N, self.c):
+            raise ValueError("copy_worlds: the source core has another geometry (map size, view size, agents)")
+        for k in self.WORLD_ARRAYS:  # fancy indexing reads src before writing dst: overlaps are safe
+            getattr(self, k)[dst] = getattr(source, k)[src]
+        self.pos[dst] += ((dst - src) * self.Ph * self.Pw)[:, None]  # flat canvas indices include the world
+        self.all_active = bool(self.active.all())
+        self.any_large = bool((self.hw.max(1) > self.V // 2).any())
+        self.any_frozen = bool(self.frozen.any())
 
     def snapshot(self, worlds=None) -> list[Scenario]:
         """The current map, agent cells and coverage of worlds as Scenarios (e.g. to save a
@@ -1139,7 +1623,8 @@ class GridWorldCore:
 
 
 # ----------------------------------------------------------------------------- spaces
-def _agent_observation_space(cfg: EnvConfig) -> spaces.Space:
+def agent_observation_space(cfg: EnvConfig) -> spaces.Space:
+    """One agent's observation space under `cfg`: the shapes a trainer sizes its network by."""
     if cfg.observation == "tabular":
         return spaces.Box(-1, max(cfg.sensor_range, 2), (8,), np.int8)
     V = cfg.view_size
@@ -1147,8 +1632,15 @@ def _agent_observation_space(cfg: EnvConfig) -> spaces.Space:
         "map": spaces.Box(0, 255, (4, V, V), np.uint8),
         "out_of_bounds": spaces.Box(0, np.inf, (4, 2), np.float32),
         "last_action": spaces.Box(0, 1, (5,), np.float32),
-        "battery": spaces.Box(0, 1, (1,), np.float32),
+        "battery": spaces.Box(0, 1, (BATTERY_FEATURES,), np.float32),
     })
+
+
+def frame_features(obs: dict[str, np.ndarray]) -> np.ndarray:
+    """The FRAME_FEATURES floats of each deep observation beside its map (leading axes kept):
+    last_action, then out_of_bounds flattened row by row and divided by OUT_OF_BOUNDS_SCALE."""
+    oob = obs["out_of_bounds"]
+    return np.concatenate([obs["last_action"], oob.reshape(*oob.shape[:-2], -1) / np.float32(OUT_OF_BOUNDS_SCALE)], -1)
 
 
 def _make_config(config: EnvConfig | dict | None, kwargs: dict) -> EnvConfig:
@@ -1163,7 +1655,7 @@ EVENT_KEYS = ("blocked", "new", "revisit", "waited", "repeated_action")
 def _configure(core: GridWorldCore, config, changes: dict) -> None:
     """Reconfigure a face's core; the observation space of a face is fixed once made."""
     new = _make_config(config if config is not None else core.config, changes)
-    if (_agent_observation_space(new) != _agent_observation_space(core.config)
+    if (agent_observation_space(new) != agent_observation_space(core.config)
             or new.number_agents != core.config.number_agents):
         raise ValueError("view_size, observation and number_agents are fixed once an env is made")
     core.configure(new)
@@ -1192,7 +1684,7 @@ class GridWorldEnv(gym.Env):
             raise ValueError(f"render_mode must be one of {self.metadata['render_modes']}")
         self.core = GridWorldCore(cfg, 1)
         self.render_mode = render_mode
-        self.observation_space = _agent_observation_space(cfg)
+        self.observation_space = agent_observation_space(cfg)
         self.action_space = spaces.Discrete(4)
         self._window = None
 
@@ -1272,7 +1764,7 @@ class GridWorldVectorEnv(VectorEnv):
         cfg = _make_config(config, kwargs)
         self.core = GridWorldCore(cfg, num_envs)
         self.num_envs, self.render_mode = num_envs, render_mode
-        agent_space = _agent_observation_space(cfg)
+        agent_space = agent_observation_space(cfg)
         self.N = cfg.number_agents
         if self.N == 1:
             self.single_observation_space = agent_space
@@ -1295,6 +1787,7 @@ class GridWorldVectorEnv(VectorEnv):
         return {k: v[:, 0] for k, v in obs.items()} if self.N == 1 else obs
 
     def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)  # seeds self.np_random, as Gymnasium's CartPoleVectorEnv does
         if seed is not None:
             self.core.seed(seed)
         mask = None if not options or "reset_mask" not in options else options["reset_mask"]
@@ -1331,72 +1824,82 @@ def _stack_space(space: spaces.Space, n: int) -> spaces.Space:
 
 
 # ----------------------------------------------------------------------------- PettingZoo
-def parallel_env(config: EnvConfig | dict | None = None, render_mode: str | None = None, **kwargs):
-    """PettingZoo ParallelEnv with `number_agents` agents in one world."""
-    from pettingzoo import ParallelEnv
+class GridWorldParallelEnv(ParallelEnv):
+    """PettingZoo ParallelEnv: one world, `number_agents` agents named agent_0, agent_1, ..."""
 
-    class GridWorldParallelEnv(ParallelEnv):
-        metadata = {"render_modes": ["human", "rgb_array"], "name": "gridworld_v0", "render_fps": 10}
+    metadata = {"render_modes": ["human", "rgb_array"], "name": "gridworld_v0", "render_fps": 10}
 
-        def __init__(self):
-            cfg = _make_config(config, kwargs)
-            self.core = GridWorldCore(cfg, 1)
-            self.render_mode, self._window = render_mode, None
-            self.possible_agents = [f"agent_{i}" for i in range(cfg.number_agents)]
+    def __init__(self, config: EnvConfig | dict | None = None, render_mode: str | None = None, **kwargs):
+        cfg = _make_config(config, kwargs)
+        if render_mode not in (None, *self.metadata["render_modes"]):
+            raise ValueError(f"render_mode must be one of {self.metadata['render_modes']}")
+        self.core = GridWorldCore(cfg, 1)
+        self.render_mode, self._window = render_mode, None
+        self.possible_agents = [f"agent_{i}" for i in range(cfg.number_agents)]
+        self.agents = []
+        self._obs_space = agent_observation_space(cfg)
+        self._act_space = spaces.Discrete(4)
+
+    def __getstate__(self) -> dict:
+        return {**self.__dict__, "_window": None}  # a pygame window does not pickle; a copy opens its own
+
+    def configure(self, config=None, **changes) -> None:
+        _configure(self.core, config, changes)
+
+    def observation_space(self, agent):
+        return self._obs_space
+
+    def action_space(self, agent):
+        return self._act_space
+
+    def _per_agent(self, values):
+        return {a: values[int(a.split("_")[1])] for a in self.agents}
+
+    def _obs(self):
+        if self.core.config.observation == "tabular":
+            return self._per_agent(self.core.observe_tabular()[0])
+        obs = self.core.observe()
+        return self._per_agent([{k: v[0, i] for k, v in obs.items()} for i in range(self.core.N)])
+
+    def _infos(self, events=None):
+        info = _info(self.core, events)
+        return self._per_agent([{k: (v[0, i] if np.ndim(v) == 2 else v[0]) for k, v in info.items()}
+                                for i in range(self.core.N)])
+
+    def reset(self, seed=None, options=None):
+        if seed is not None:
+            self.core.seed(seed)
+        self.core.reset()
+        self.agents = [a for a, on in zip(self.possible_agents, self.core.active[0]) if on]
+        return self._obs(), self._infos()
+
+    def step(self, actions):
+        a = np.full((1, self.core.N), WAIT)
+        for name, act in actions.items():  # an agent missing from the dict gives no action
+            a[0, int(name.split("_")[1])] = int(act)
+        ev = self.core.step(a)
+        obs, infos = self._obs(), self._infos(ev)
+        rewards = self._per_agent([float(r) for r in ev["reward"][0]])
+        term = {ag: bool(ev["terminated"][0]) for ag in self.agents}
+        trunc = {ag: bool(ev["truncated"][0]) for ag in self.agents}
+        if ev["terminated"][0] or ev["truncated"][0]:
             self.agents = []
-            self._obs_space = _agent_observation_space(cfg)
-            self._act_space = spaces.Discrete(4)
+        return obs, rewards, term, trunc, infos
 
-        def observation_space(self, agent):
-            return self._obs_space
+    def heuristic_actions(self):
+        return self._per_agent(self.core.heuristic_actions()[0].tolist())
 
-        def action_space(self, agent):
-            return self._act_space
+    def render(self):
+        return _render(self, self.core, 0)
 
-        def _per_agent(self, values):
-            return {a: values[int(a.split("_")[1])] for a in self.agents}
+    def close(self):
+        _close_window(self)
 
-        def _obs(self):
-            if self.core.config.observation == "tabular":
-                return self._per_agent(self.core.observe_tabular()[0])
-            obs = self.core.observe()
-            return self._per_agent([{k: v[0, i] for k, v in obs.items()} for i in range(self.core.N)])
 
-        def _infos(self, events=None):
-            info = _info(self.core, events)
-            return self._per_agent([{k: (v[0, i] if np.ndim(v) == 2 else v[0]) for k, v in info.items()}
-                                    for i in range(self.core.N)])
-
-        def reset(self, seed=None, options=None):
-            if seed is not None:
-                self.core.seed(seed)
-            self.core.reset()
-            self.agents = [a for a, on in zip(self.possible_agents, self.core.active[0]) if on]
-            return self._obs(), self._infos()
-
-        def step(self, actions):
-            a = np.full((1, self.core.N), WAIT)
-            for name, act in actions.items():  # an agent missing from the dict gives no action
-                a[0, int(name.split("_")[1])] = int(act)
-            ev = self.core.step(a)
-            obs, infos = self._obs(), self._infos(ev)
-            rewards = self._per_agent([float(r) for r in ev["reward"][0]])
-            term = {ag: bool(ev["terminated"][0]) for ag in self.agents}
-            trunc = {ag: bool(ev["truncated"][0]) for ag in self.agents}
-            if ev["terminated"][0] or ev["truncated"][0]:
-                self.agents = []
-            return obs, rewards, term, trunc, infos
-
-        def heuristic_actions(self):
-            return self._per_agent(self.core.heuristic_actions()[0].tolist())
-
-        def render(self):
-            return _render(self, self.core, 0)
-
-        def close(self):
-            _close_window(self)
-
-    return GridWorldParallelEnv()
+def parallel_env(config: EnvConfig | dict | None = None, render_mode: str | None = None,
+                 **kwargs) -> GridWorldParallelEnv:
+    """PettingZoo ParallelEnv with `number_agents` agents in one world (PettingZoo's factory name)."""
+    return GridWorldParallelEnv(config, render_mode, **kwargs)
 
 
 gym.register("GridWorld-v0", entry_point=GridWorldEnv, vector_entry_point=GridWorldVectorEnv,
@@ -1435,6 +1938,21 @@ def benchmark(seconds: float = 1.0, repeats: int = 3, batch: int = 64) -> list[d
     return rows
 
 
+def map_family_benchmark(size: int = 20, seconds: float = 1.0, batch: int = 64) -> list[dict]:
+    """Usable maps/s drawn into the core's pool per map family (size x size, one agent, `batch` maps per draw as
+    a reset refills it: family obstacles, start placement and Algorithm 10 included); "random" with 10% obstacles."""
+    rows = []
+    for family in MAP_FAMILIES:
+        core = GridWorldCore(EnvConfig(size=size, map_family=family, number_obstacles=size * size // 10), 1, seed=0)
+        n, t0 = 0, time.perf_counter()
+        while time.perf_counter() - t0 < seconds:
+            core.pool = [p[:0] for p in core.pool]
+            core._draw_maps(batch)
+            n += len(core.pool[0])
+        rows.append(dict(map_family=family, size=size, batch=batch, maps_per_s=round(n / (time.perf_counter() - t0))))
+    return rows
+
+
 def heuristic_overlap(size: int, episodes: int = 64, seed: int = 0, random_ties: bool = True) -> dict:
     """Mean overlap of the navigation heuristic run to completion on random maps drawn as in
     §6.5.1.1 (obstacles 0-10% of the cells, random start, unreachable cells filled)."""
@@ -1451,13 +1969,114 @@ def heuristic_overlap(size: int, episodes: int = 64, seed: int = 0, random_ties:
                 heuristic_overlap_mean=round(float(overlap.mean()), 4))
 
 
+# ----------------------------------------------------------------------------- recording
+def _path_array(scenario: Scenario, paths) -> np.ndarray:
+    """(T+1, N, 2) (row, col) cells from either that array or per-agent (T_i+1, 2) lists padded with each
+    agent's last cell."""
+    if isinstance(paths, np.ndarray) and paths.ndim == 3:
+        a = paths.astype(np.int64)
+    else:
+        per_agent = [np.asarray(p, np.int64).reshape(-1, 2) for p in paths]
+        if not per_agent or any(len(p) == 0 for p in per_agent):
+            raise ValueError("paths: one non-empty path of [row, col] cells per agent")
+        T = max(len(p) for p in per_agent)
+        a = np.stack([np.concatenate([p, p[-1:].repeat(T - len(p), 0)]) for p in per_agent], 1)
+    h, w = scenario.obstacles.shape
+    if a.shape[-1] != 2 or a.shape[1] == 0 or len(a) == 0:
+        raise ValueError(f"paths: expected (steps, agents, 2) cells, got shape {a.shape}")
+    if (a < 0).any() or (a[..., 0] >= h).any() or (a[..., 1] >= w).any():
+        raise ValueError(f"paths: a cell lies outside the {h}x{w} map")
+    if (np.abs(np.diff(a, axis=0)).sum(-1) > 1).any():
+        raise ValueError("paths: consecutive cells must be 4-adjacent")
+    return a
+
+
+def replay_frames(scenario: Scenario, paths, cell: int = 16, config: EnvConfig | dict | None = None) -> list[np.ndarray]:
+    """RGB frames (h*cell, w*cell, 3) of the agents walking `paths` on `scenario`, the first at the starts: the
+    moves are replayed through a core (the safety controller included), so what is drawn is what gridworld did.
+    `config` sets the sensor (the known map is drawn); its battery is lifted so the replay never truncates."""
+    a = _path_array(scenario, paths)
+    cfg = _make_config(config, {}).replace(load_state=True, number_agents=a.shape[1], battery_factor=1e6)
+    core = GridWorldCore(cfg, 1)
+    core.configure(scenarios=[Scenario(scenario.obstacles, a[0], scenario.covered)])
+    core.reset()
+    actions = FIRST_STEP[np.diff(a[..., 0], axis=0) + 1, np.diff(a[..., 1], axis=0) + 1]  # (T, N)
+    frames = [core.render_rgb(0, cell)]
+    for move in actions:
+        core.step(move[None])
+        frames.append(core.render_rgb(0, cell))
+    return frames
+
+
+def write_video(frames: list[np.ndarray], path: str, fps: int = 10) -> str:
+    """An MP4 of RGB frames (moviepy, H.264); frames are padded to even sides as yuv420p needs."""
+    from moviepy import ImageSequenceClip
+
+    if not frames:
+        raise ValueError(f"{path}: no frames to write")
+    h, w = frames[0].shape[:2]
+    pad = ((0, h % 2), (0, w % 2), (0, 0))
+    frames = [np.pad(f, pad) for f in frames]
+    clip = ImageSequenceClip(frames + frames[-1:], fps=fps)  # moviepy's writer drops the last frame: show it once more
+    os.makedirs(os.path.dirname(path) or ".", exist_ok=True)
+    clip.write_videofile(path, codec="libx264", audio=False, logger=None)
+    return path
+
+
+def plot_path(scenario: Scenario, paths, path: str = "", title: str = "", ax=None) -> str:
+    """The final coverage (covered cells tinted, cells never reached white, obstacles black) with each agent's
+    path drawn in step order (light to dark), its start a circle and its end a square. Saves a PNG at `path`
+    unless `ax` is given, in which case it draws there and returns ""."""
+    import matplotlib
+
+    if ax is None:
+        matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.collections import LineCollection
+
+    a = _path_array(scenario, paths)
+    h, w = scenario.obstacles.shape
+    covered = np.zeros((h, w), bool) if scenario.covered is None else scenario.covered.copy()
+    covered[a[..., 0].ravel(), a[..., 1].ravel()] = True
+    rgb = np.ones((h, w, 3))
+    rgb[covered] = (1.0, 0.85, 0.85)
+    rgb[scenario.obstacles] = 0.0
+    fig = None
+    if ax is None:
+        fig, ax = plt.subplots(figsize=(max(3.0, w / 5), max(3.0, h / 5)))
+    ax.imshow(rgb, interpolation="nearest")
+    cmaps = ["Blues", "Greens", "Oranges", "Purples", "Reds", "Greys"]
+    for i in range(a.shape[1]):
+        xy = a[:, i, ::-1].astype(float)
+        segments = np.stack([xy[:-1], xy[1:]], 1)
+        keep = (segments[:, 0] != segments[:, 1]).any(1)
+        ramp = np.linspace(0.35, 1.0, max(len(segments), 1))[keep]
+        ax.add_collection(LineCollection(segments[keep], cmap=cmaps[i % len(cmaps)], array=ramp, norm=plt.Normalize(0, 1),
+                                         linewidths=2))
+        ax.plot(*xy[0], "o", color="tab:green", markersize=7, markeredgecolor="k")
+        ax.plot(*xy[-1], "s", color="tab:red", markersize=6, markeredgecolor="k")
+    ax.set(xlim=(-0.5, w - 0.5), ylim=(h - 0.5, -0.5), xticks=[], yticks=[], title=title)
+    if fig is None:
+        return ""
+    os.makedirs(os.path.dirname(path) or ".", exist_ok=True)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
 if __name__ == "__main__":
+    if sys.argv[1:] not in ([], ["-h"], ["--help"], ["--bench"]):
+        raise SystemExit(f"error: gridworld.py: unknown argument(s) {' '.join(sys.argv[1:])!r}; "
+                         "usage: python gridworld.py [--bench]")
     if "--bench" in sys.argv:
         for row in benchmark():
+            print(json.dumps(row), flush=True)
+        for row in map_family_benchmark():
             print(json.dumps(row), flush=True)
         for size in (5, 10, 15, 20, 25, 30):
             for random_ties in (True, False):
                 print(json.dumps(heuristic_overlap(size, random_ties=random_ties)), flush=True)
     else:
         print(__doc__)
-        print("usage: python gridworld.py --bench")
+        print("usage: python gridworld.py [--bench]")

@@ -3,6 +3,7 @@
     python rainbow_cpp.py                                  # Tables 6.2 then 6.3 (31 M steps each)
     python rainbow_cpp.py --stage-steps-scale 0.01 --hidden 256 --num-envs 16    # a short run
     python rainbow_cpp.py --resume --run-name NAME         # continue an interrupted run
+    python rainbow_cpp.py --export models/rainbow_cpp.pt   # ship the model (the only way to write models/)
 
 Double DQN target, prioritized replay (sum tree), dueling streams of factorised-Gaussian noisy
 layers, n-step returns (n = 1 by default), soft target updates every learning period K, and
@@ -10,23 +11,38 @@ the training features of §6.4.2: partial episode bootstrapping, partial resetti
 challenging-episode buffer, imitation of the navigation heuristic and uncommon patterns. Acting
 is batched over `num_envs` worlds of one gridworld core; the replay buffer keeps one compact
 frame per step in a segment per world and rebuilds frame stacks and next states when sampled.
-TensorBoard logs go to runs/RUN (CleanRL's tags), checkpoints to runs/RUN/checkpoint.pt and the
-deployable weights (mean weights, fp16) to models/ with a JSON of how they were trained.
+
+Everything a run writes goes under runs/RUN_NAME/ (default `rainbow_cpp__SEED__UNIXTIME`, as CleanRL):
+TensorBoard logs (CleanRL's tags), checkpoint.pt, the deployable weights rainbow_cpp.pt (mean weights, fp16,
+with the frames, hidden width and observation they need) and rainbow_cpp.json beside them (flags, steps,
+provenance: git commit, machine, torch, wall time, date; and the lineage of an --init-from parent), and
+with --capture-video videos/step_N.mp4 of an evaluation episode. --init-from and --resume take the
+network's width and frame stack from the file they load.
 """
 from __future__ import annotations
 
+import datetime
+import hashlib
 import json
+import math
 import os
+import pickle
+import platform
 import random
 import signal
+import subprocess
+import sys
 import time
-from dataclasses import asdict, dataclass
+import warnings
+import zipfile
+from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 import torch
 import torch.nn as nn
 import torch.nn.functional as F
 import tyro
+from tqdm import tqdm
 
 import gridworld
 
@@ -42,10 +58,19 @@ STAGES = [dict(name=f"{kind}{i + 1}", base_steps=steps, size=size, min_size=min_
 
 @dataclass
 class Args:
-    run_name: str = "rainbow_cpp"
-    """folder under runs/ for TensorBoard logs and the checkpoint"""
+    exp_name: str = os.path.basename(__file__)[: -len(".py")]
+    """the name of this experiment (the start of the default run name)"""
     seed: int = 1
     """seed of numpy, torch and the environment"""
+    run_name: str | None = None
+    """folder under runs/ for everything the run writes (default: {exp_name}__{seed}__{unix time});
+    required with --resume"""
+    torch_threads: int = 0
+    """torch CPU threads (0: torch's default, e.g. from OMP_NUM_THREADS)"""
+    quiet: bool = False
+    """no progress bar or periodic step lines (evaluations and the end are still printed)"""
+    capture_video: bool = False
+    """at each evaluation, write runs/RUN/videos/step_N.mp4 of its first episode"""
     stages: str | None = None
     """YAML file of named environments (Table 4.1 keys, `base_steps` each); default: Tables 6.2
     then 6.3"""
@@ -80,8 +105,9 @@ class Args:
     noise is resampled and the target soft-updated at every gradient step"""
     n_step: int = 1
     """multi-step return length n"""
-    frame_stack: int = 3
-    """stacked frames of map, last action and out-of-bounds (§6.3.2.7)"""
+    frame_stack: int | None = None
+    """stacked frames of map, last action and out-of-bounds (§6.3.2.7); default: the model loaded by
+    --init-from or --resume, else 3"""
     alpha: float = 0.5
     """priority exponent"""
     beta_start: float = 0.4
@@ -90,8 +116,9 @@ class Args:
     """gradient L2 norm clip"""
     sigma0: float = 0.5
     """noisy layers' initial standard deviation"""
-    hidden: int = 512
-    """width of the two hidden layers of each dueling stream"""
+    hidden: int | None = None
+    """width of the two hidden layers of each dueling stream; default: the model loaded by
+    --init-from or --resume, else 512 (Fig. 6.8)"""
     peb: bool = True
     """partial episode bootstrapping: truncation is not termination (§6.4.2.1)"""
     partial_reset: bool = True
@@ -120,17 +147,37 @@ class Args:
     first (Warnsdorff's rule, not in the dissertation): half greedy's overlap on cpp_eval, so a
     better teacher and fallback; --no-heuristic-dead-ends for the dissertation's heuristic"""
     eval_every: int = 25_000
-    """environment steps between evaluations on held-out cpp_eval maps"""
+    """environment steps between evaluations on held-out cpp_eval maps (0: none)"""
     eval_maps: int = 32
     """held-out maps per evaluation (cpp_eval sizes up to the current stage's)"""
     save_every: int = 25_000
-    """environment steps between checkpoints"""
+    """environment steps between checkpoints (0: only at the end)"""
     resume: bool = False
-    """continue runs/RUN/checkpoint.pt (the replay memory restarts empty)"""
+    """continue runs/RUN/checkpoint.pt (needs --run-name; the replay memory restarts empty)"""
     init_from: str | None = None
-    """start from these weights (a checkpoint or a models/*.pt export)"""
-    export: str = "models/rainbow_cpp.pt"
-    """deployable weights written at the end and at each checkpoint"""
+    """start from these weights (a checkpoint or an export such as models/rainbow_cpp.pt)"""
+    export: str | None = None
+    """deployable weights (and their JSON) written at each checkpoint and at the end; default:
+    runs/RUN/rainbow_cpp.pt; ship a model with an explicit --export models/rainbow_cpp.pt"""
+
+
+# ============================================================================= shared by the two trainers
+# From here to "end of the shared code" rainbow_cpp.py and rainbow_marl.py are the same, character for
+# character: each script stays self-contained, and tests/test_trainers_shared.py fails on any drift.
+SCRIPT = os.path.splitext(os.path.basename(__file__))[0]
+HERE = os.path.dirname(os.path.abspath(__file__))
+OBSERVATION = gridworld.agent_observation_space(gridworld.EnvConfig())  # one agent's deep observation (§6.3.2)
+VIEW = OBSERVATION["map"].shape[-1]  # edge of the map window centred on the agent
+CHANNELS = OBSERVATION["map"].shape[0]  # points of interest, covered, obstacles, agents
+LAST_ACTIONS = OBSERVATION["last_action"].shape[0]  # one-hot, WAIT included
+OUT_OF_BOUNDS = OBSERVATION["out_of_bounds"].shape  # [N, S, W, E] x [rows/cols beyond, points of interest beyond]
+EXTRAS = LAST_ACTIONS + math.prod(OUT_OF_BOUNDS)  # the vector inputs of one frame, beside the map
+OUT_OF_BOUNDS_SCALE = gridworld.OUT_OF_BOUNDS_SCALE  # the out-of-bounds counts (eq. 6.5) enter the network scaled
+MOVES = gridworld.WAIT  # the learned actions are the four moves; WAIT is "no action" (§6.3.1)
+DISSERTATION = {"hidden": 512, "frame_stack": 3}  # Fig. 6.8's stream width and §6.3.2.7's frames
+CHECKPOINT_KEYS = ("model", "optimizer", "global_step", "stage", "wall", "numpy_rng", "torch_rng")
+UNREADABLE = (OSError, EOFError, RuntimeError, KeyError, IndexError, TypeError, ValueError, AttributeError,
+              pickle.UnpicklingError, zipfile.BadZipFile)  # what torch.load of a foreign or truncated file raises
 
 
 # ----------------------------------------------------------------------------- the network
@@ -170,17 +217,23 @@ class QNetwork(nn.Module):
 
     def __init__(self, frames: int, view: int, hidden: int, sigma0: float):
         super().__init__()
+        self.frames, self.view, self.hidden = frames, view, hidden
         self.conv = nn.Sequential(
-            nn.Conv2d(4 * frames, 32, 3, 1, 1), nn.ReLU(),
+            nn.Conv2d(CHANNELS * frames, 32, 3, 1, 1), nn.ReLU(),
             nn.Conv2d(32, 64, 3, 2), nn.ReLU(),
             nn.Conv2d(64, 64, 3, 2), nn.ReLU(), nn.Flatten())
         with torch.no_grad():
-            n_conv = self.conv(torch.zeros(1, 4 * frames, view, view)).shape[1]
-        n_in = n_conv + 1 + frames * (5 + 8)  # battery, last actions, out-of-bounds
+            n_conv = self.conv(torch.zeros(1, CHANNELS * frames, view, view)).shape[1]
+        n_in = n_conv + 1 + frames * EXTRAS  # battery, then last action and out-of-bounds of every frame
         self.value = nn.ModuleList([NoisyLinear(n_in, hidden, sigma0), NoisyLinear(hidden, hidden, sigma0),
                                     NoisyLinear(hidden, 1, sigma0)])
         self.advantage = nn.ModuleList([NoisyLinear(n_in, hidden, sigma0), NoisyLinear(hidden, hidden, sigma0),
-                                        NoisyLinear(hidden, 4, sigma0)])
+                                        NoisyLinear(hidden, MOVES, sigma0)])
+
+    def network(self) -> dict:
+        """What a saved copy needs to be rebuilt and fed: frames, hidden width, view, extras, observation kind."""
+        return {"frames": self.frames, "hidden": self.hidden, "view": self.view, "extras": EXTRAS,
+                "observation": "deep"}
 
     def reset_noise(self, on: bool = True):
         for m in self.modules():
@@ -236,18 +289,18 @@ class SumTree:
 
 
 class Replay:
-    """One compact frame per step in a ring segment per world, so stacks and next states are
-    neighbouring slots of the same world. A frame: the map bit-packed (841 bytes for 4x41x41)
-    plus the four compressed edge lines raw, out-of-bounds, last action and battery."""
+    """One compact frame per step in a ring segment per stream (a world, or one agent of a world), so stacks
+    and next states are neighbouring slots of the same stream. A frame: the map bit-packed (841 bytes for
+    4x41x41) plus the four compressed edge lines raw, out-of-bounds, last action and battery."""
 
     def __init__(self, capacity: int, worlds: int, view: int, frames: int, n_step: int, gamma: float,
                  alpha: float):
         self.cap, self.worlds, self.V, self.k = capacity // worlds, worlds, view, frames
         self.n_step, self.gamma, self.alpha = n_step, gamma, alpha
         size = self.cap * worlds
-        self.bits = np.zeros((size, (4 * view * view + 7) // 8), np.uint8)
-        self.edges = np.zeros((size, 4, 4, view), np.uint8)  # rows 1, V-2 and cols 1, V-2
-        self.oob = np.zeros((size, 4, 2), np.float16)
+        self.bits = np.zeros((size, (CHANNELS * view * view + 7) // 8), np.uint8)
+        self.edges = np.zeros((size, 4, CHANNELS, view), np.uint8)  # rows 1, V-2 and cols 1, V-2
+        self.oob = np.zeros((size, *OUT_OF_BOUNDS), np.float16)
         self.last = np.zeros(size, np.int8)
         self.battery = np.zeros(size, np.float16)
         self.action = np.zeros(size, np.int8)
@@ -267,7 +320,7 @@ class Replay:
                     self.reward, self.terminal, self.final, self.age)) + 16  # + sum-tree leaf
 
     def add_frames(self, worlds: np.ndarray, obs: dict, age: np.ndarray, final: np.ndarray) -> np.ndarray:
-        """Write the current frame of each world; returns the slots written."""
+        """Write the current frame of each stream; returns the slots written."""
         slot = worlds * self.cap + self.pointer[worlds]
         maps = obs["map"]
         self.bits[slot] = np.packbits((maps > 0).reshape(len(slot), -1), axis=1)
@@ -294,7 +347,7 @@ class Replay:
     def set_transition(self, slot: np.ndarray, action: np.ndarray, reward: np.ndarray, terminal: np.ndarray,
                        label: np.ndarray | None = None):
         self.action[slot], self.reward[slot], self.terminal[slot] = action, reward, terminal
-        self.label[slot] = -1 if label is None else np.where(label < 4, label, -1)  # WAIT is no move to learn
+        self.label[slot] = -1 if label is None else np.where(label < MOVES, label, -1)  # WAIT is no move to learn
 
     def _frames(self, slot: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Stacked maps (n, 4k, V, V) uint8 and extras (n, 1 + 13k) for frames ending at slot."""
@@ -303,14 +356,14 @@ class Replay:
         back = np.minimum(self.age[slot][:, None], np.arange(k - 1, -1, -1))  # stay in the episode
         frames = base[:, None] + (pos[:, None] - back) % self.cap  # (n, k) oldest first
         flat = frames.ravel()
-        maps = np.unpackbits(self.bits[flat], axis=1, count=4 * V * V).reshape(-1, 4, V, V) * np.uint8(255)
+        maps = np.unpackbits(self.bits[flat], axis=1, count=CHANNELS * V * V).reshape(-1, CHANNELS, V, V) * np.uint8(255)
         maps[:, :, 1], maps[:, :, V - 2] = self.edges[flat, :, 0], self.edges[flat, :, 1]
         maps[:, :, :, 1], maps[:, :, :, V - 2] = self.edges[flat, :, 2], self.edges[flat, :, 3]
-        last = np.eye(5, dtype=np.float32)[self.last[flat]]
-        oob = self.oob[flat].astype(np.float32).reshape(-1, 8) / 100  # counts, scaled
+        last = np.eye(LAST_ACTIONS, dtype=np.float32)[self.last[flat]]
+        oob = self.oob[flat].astype(np.float32).reshape(len(flat), -1) / OUT_OF_BOUNDS_SCALE
         extras = np.concatenate([self.battery[slot].astype(np.float32)[:, None],
                                  np.concatenate([last, oob], 1).reshape(len(slot), -1)], 1)
-        return maps.reshape(len(slot), 4 * k, V, V), extras
+        return maps.reshape(len(slot), CHANNELS * k, V, V), extras
 
     def sample(self, n: int, beta: float, rng: np.random.Generator):
         slot = self.tree.sample(n, rng)
@@ -345,42 +398,19 @@ class Replay:
         self.tree.update(slot, priority ** self.alpha)
 
 
-# ----------------------------------------------------------------------------- helpers
-def load_stages(args: Args) -> list[gridworld.EnvConfig]:
-    if args.stages:
-        stages = list(gridworld.load_config(args.stages).values())
-    else:
-        stages = [gridworld.EnvConfig.from_dict(s) for s in STAGES if args.camera_stages or s["sensor"] == "full"]
-    for s in stages:
-        if s.number_agents != 1:
-            raise ValueError(f"stage {s.name}: rainbow_cpp is single-agent (number_agents: 1)")
-        if s.base_steps <= 0:
-            raise ValueError(f"stage {s.name}: base_steps must be > 0")
-    return stages
-
-
-def stage_config(stage: gridworld.EnvConfig, args: Args) -> gridworld.EnvConfig:
-    """The stage's settings plus the uncommon-pattern episodes of §6.4.2.5 and a 2-h*w battery
-    top-up for partial resets (gridworld.GridWorldCore.recharge)."""
-    if stage.random_coverage and args.uncommon_patterns > 0:
-        return stage.replace(random_coverage_prob=args.uncommon_patterns, random_coverage_max=args.uncommon_max)
-    return stage
-
-
-def to_torch(maps: np.ndarray, extras: np.ndarray):
-    return torch.from_numpy(np.ascontiguousarray(maps)), torch.from_numpy(extras)
-
-
+# ----------------------------------------------------------------------------- acting and learning
 class Stacker:
-    """The last k frames of every world, for acting (the replay rebuilds its own)."""
+    """The last k frames of every stream (a world, or one agent of a world), for acting (the replay rebuilds
+    its own)."""
 
-    def __init__(self, worlds: int, k: int, view: int):
-        self.maps = np.zeros((worlds, k, 4, view, view), np.uint8)
-        self.extra = np.zeros((worlds, k, 13), np.float32)
-        self.battery = np.zeros((worlds, 1), np.float32)
+    def __init__(self, streams: int, k: int, view: int):
+        self.maps = np.zeros((streams, k, CHANNELS, view, view), np.uint8)
+        self.extra = np.zeros((streams, k, EXTRAS), np.float32)
+        self.battery = np.zeros((streams, 1), np.float32)
 
     def push(self, obs: dict, restart: np.ndarray) -> None:
-        extra = np.concatenate([obs["last_action"], obs["out_of_bounds"].reshape(-1, 8) / 100], 1)
+        oob = obs["out_of_bounds"]
+        extra = np.concatenate([obs["last_action"], oob.reshape(len(oob), -1) / OUT_OF_BOUNDS_SCALE], 1)
         self.maps[:, :-1], self.extra[:, :-1] = self.maps[:, 1:], self.extra[:, 1:]
         self.maps[:, -1], self.extra[:, -1] = obs["map"], extra
         self.maps[restart] = obs["map"][restart][:, None]  # a new episode repeats its first frame
@@ -394,12 +424,17 @@ class Stacker:
 
 
 def observe(core: gridworld.GridWorldCore) -> dict:
-    return {k: v[:, 0] for k, v in core.observe().items()}
+    """Every agent's observation, agent-major per world: stream b * N + i is agent i of world b."""
+    return {k: v.reshape(-1, *v.shape[2:]) for k, v in core.observe().items()}
+
+
+def to_torch(maps: np.ndarray, extras: np.ndarray):
+    return torch.from_numpy(np.ascontiguousarray(maps)), torch.from_numpy(extras)
 
 
 def stuck(since_new: np.ndarray, moved: np.ndarray, size: np.ndarray) -> np.ndarray:
-    """§6.4.2.4 conditions 3-4: no new cell in more than M steps (M = map edge), or none and at
-    most two cells of displacement in the last five steps."""
+    """§6.4.2.4 conditions 3-4, per agent: no new cell in more than M steps (M = map edge), or
+    none and at most two cells of displacement in the last five steps."""
     return (since_new > size) | ((since_new >= 5) & (moved <= 2))
 
 
@@ -412,17 +447,366 @@ def large_margin_loss(q_all: torch.Tensor, label: torch.Tensor, margin: float) -
     return ((beaten - q_all.gather(1, a_e[:, None])[:, 0]) * has).sum() / has.sum().clamp(min=1)
 
 
+def learn(q: QNetwork, target: QNetwork, optimizer: torch.optim.Optimizer, replay: Replay, args: Args,
+          beta: float, rng: np.random.Generator) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
+    """One gradient step on a prioritized batch: the double-DQN TD loss (plus the margin loss), new
+    priorities, the soft target update (eq. 6.19) and fresh noise. Returns the TD loss, the mean Q(s, a)
+    and the margin loss (None without one), detached."""
+    idx, (m_, e_), a_, ret, (nm, ne), boot, weight = replay.sample(args.batch_size, beta, rng)
+    m_, e_, nm, ne = (torch.from_numpy(np.ascontiguousarray(x)) for x in (m_, e_, nm, ne))
+    with torch.no_grad():  # double DQN: the online net picks, the target net values
+        best = q(nm, ne).argmax(1, keepdim=True)
+        y = torch.from_numpy(ret) + torch.from_numpy(boot) * target(nm, ne).gather(1, best)[:, 0]
+    q_all = q(m_, e_)
+    q_sa = q_all.gather(1, torch.from_numpy(a_)[:, None])[:, 0]
+    td_loss = (torch.from_numpy(weight.astype(np.float32)) * F.smooth_l1_loss(q_sa, y, reduction="none")).mean()
+    loss, margin_loss = td_loss, None
+    if args.margin_loss:
+        margin_loss = large_margin_loss(q_all, torch.from_numpy(replay.label[idx].astype(np.int64)), args.margin)
+        loss = loss + args.margin_loss * margin_loss
+    optimizer.zero_grad()
+    loss.backward()
+    nn.utils.clip_grad_norm_(q.parameters(), args.max_grad_norm)
+    optimizer.step()
+    replay.update_priorities(idx, (y - q_sa).detach().numpy())
+    with torch.no_grad():  # eq. 6.19
+        for p, tp in zip(q.parameters(), target.parameters()):
+            tp.lerp_(p, args.tau)
+    q.reset_noise()
+    target.reset_noise()
+    return td_loss.detach(), q_sa.detach().mean(), None if margin_loss is None else margin_loss.detach()
+
+
+# ----------------------------------------------------------------------------- evaluation
+def eval_config(scenarios: list, sensor: str = "full", sensor_range: int = 3,
+                sensor_failure: float = 0.0) -> gridworld.EnvConfig:
+    """Worlds that replay the given scenarios as they are (maps, starts, coverage), as many agents as the
+    most starts."""
+    return gridworld.EnvConfig(load_state=True, load_random=False, sensor=sensor, sensor_range=sensor_range,
+                               sensor_failure=sensor_failure, number_agents=max(len(s.starts) for s in scenarios))
+
+
+def heuristic_baseline(config: gridworld.EnvConfig, scenarios: list, random_ties: bool,
+                       dead_ends_first: bool) -> dict:
+    """The navigation heuristic alone (targets claimed among agents) once on each scenario: the yardstick
+    printed beside every evaluation. Per-episode arrays: gridworld's metrics, each world's own steps."""
+    core = gridworld.GridWorldCore(config, len(scenarios))
+    core.configure(scenarios=scenarios)
+    core.reset()
+    done, steps = np.zeros(core.B, bool), np.zeros(core.B, np.int64)
+    while not done.all():
+        ev = core.step(np.where(done[:, None], gridworld.WAIT, core.heuristic_actions(random_ties, dead_ends_first)))
+        steps += ~done
+        done |= ev["terminated"] | ev["truncated"]
+    m = core.metrics()
+    return {**m, "steps": steps, "time_save": steps / np.maximum(m["n_poi_start"], 1)}
+
+
+def world_paths(cells: list, steps: np.ndarray, active: np.ndarray) -> list[np.ndarray]:
+    """Per world, the (row, col) of each of its agents at every step from the start to its own end:
+    (T + 1, N, 2) int arrays, from the (B, N, 2) cells of every step."""
+    path = np.stack(cells)
+    return [path[:t + 1, b][:, active[b]].astype(np.int64) for b, t in enumerate(steps)]
+
+
+def write_episode_video(scenario: gridworld.Scenario, path: np.ndarray, video: str, sensor: str = "full",
+                        sensor_range: int = 3) -> str:
+    """An MP4 of one evaluation episode, replayed through gridworld from its agents' cells."""
+    frames = gridworld.replay_frames(scenario, path, config=dict(sensor=sensor, sensor_range=sensor_range))
+    return gridworld.write_video(frames, video)
+
+
+# ----------------------------------------------------------------------------- files
+def save_checkpoint(path: str, state: dict) -> None:
+    os.makedirs(os.path.dirname(path) or ".", exist_ok=True)
+    tmp = path + ".tmp"
+    torch.save(state, tmp)
+    os.replace(tmp, path)  # atomic: a crash never leaves half a checkpoint
+
+
+def write_json(path: str, data: dict) -> None:
+    tmp = path + ".tmp"
+    with open(tmp, "w") as f:
+        json.dump(data, f, indent=1)
+    os.replace(tmp, path)  # atomic, as the weights beside it
+
+
+def export(q: QNetwork, args: Args, info: dict) -> None:
+    """Deployable weights at args.export: the noisy layers' means only, fp16, with what the network needs;
+    beside them a JSON of the flags, the network and `info` (steps, provenance, parent model)."""
+    weights = {k: v.half() for k, v in q.state_dict().items() if "sigma" not in k and "eps" not in k}
+    save_checkpoint(args.export, {"weights": weights, **q.network()})
+    write_json(os.path.splitext(args.export)[0] + ".json", {"args": asdict(args), "network": q.network(), **info})
+
+
+def reason(e: BaseException) -> str:
+    """Why a file was refused, in one line: the error's first line, or what torch's weights-only refusal means."""
+    if isinstance(e, pickle.UnpicklingError):
+        return "not a torch file of tensors and plain values"
+    return (str(e).splitlines() or [type(e).__name__])[0]
+
+
+def read_model(path: str) -> dict:
+    """A saved network (an export or a training checkpoint) as a dict with its weights; a missing, truncated
+    or foreign file is a one-line ValueError naming it."""
+    if not os.path.exists(path):
+        raise ValueError(f"{path}: no such checkpoint")
+    try:
+        with warnings.catch_warnings():  # torch warns about pickles it then refuses: the error says it all
+            warnings.simplefilter("ignore")
+            blob = torch.load(path, map_location="cpu", weights_only=True)
+    except UNREADABLE as e:
+        raise ValueError(f"{path}: not a rainbow_cpp / rainbow_marl model "
+                         f"({reason(e)})") from None
+    if not isinstance(blob, dict) or not isinstance(blob.get("weights", blob.get("model")), dict):
+        raise ValueError(f"{path}: not a rainbow_cpp / rainbow_marl model (no weights in it)")
+    return blob
+
+
+def network_of(blob: dict, path: str) -> dict:
+    """The network a saved file needs (QNetwork.network(); older files record frames and hidden only, older
+    checkpoints only their flags), checked against the observation gridworld gives."""
+    flags = blob["args"] if isinstance(blob.get("args"), dict) else {}
+    spec = {"frames": blob.get("frames", flags.get("frame_stack")), "hidden": blob.get("hidden", flags.get("hidden")),
+            "view": blob.get("view", VIEW), "extras": blob.get("extras", EXTRAS),
+            "observation": blob.get("observation", "deep")}
+    if not all(isinstance(spec[k], int) and spec[k] >= 1 for k in ("frames", "hidden", "view", "extras")):
+        raise ValueError(f"{path}: not a rainbow_cpp / rainbow_marl model (no frame count or hidden width)")
+    if (spec["observation"], spec["view"], spec["extras"]) != ("deep", VIEW, EXTRAS):
+        raise ValueError(f"{path}: a network for the {spec['observation']} observation, view {spec['view']}, "
+                         f"{spec['extras']} extras a frame; gridworld observes deep, view {VIEW}, {EXTRAS} extras")
+    return spec
+
+
+def policy_from(blob: dict, path: str) -> QNetwork:
+    """The network of a file read by read_model, with its mean weights and noise off."""
+    spec = network_of(blob, path)
+    q = QNetwork(spec["frames"], spec["view"], spec["hidden"], 0.0)
+    try:
+        missing, unexpected = q.load_state_dict({k: v.float() for k, v in blob.get("weights", blob.get("model")).items()},
+                                                strict=False)
+    except UNREADABLE as e:
+        raise ValueError(f"{path}: weights do not match this network "
+                         f"({reason(e)})") from None
+    if unexpected or any("sigma" not in k and "eps" not in k for k in missing):
+        raise ValueError(f"{path}: weights do not match this network")
+    q.reset_noise(False)
+    return q.eval()
+
+
+def load_policy(path: str) -> QNetwork:
+    """A deployable export (or a training checkpoint) as a network with noise off."""
+    return policy_from(read_model(path), path)
+
+
+def load_checkpoint(path: str) -> dict:
+    """A training checkpoint to resume, checked to hold a whole training state."""
+    if not os.path.exists(path):
+        raise ValueError(f"{path}: nothing to resume")
+    state = read_model(path)
+    missing = [k for k in CHECKPOINT_KEYS if k not in state]
+    if missing:
+        raise ValueError(f"{path}: not a training checkpoint (no {', '.join(missing)})")
+    return state
+
+
+# ----------------------------------------------------------------------------- the run
+def check_flags(args: Args) -> None:
+    """The flags both trainers share: a count or a chance out of range is a one-line error."""
+    for name, least in (("total_steps", 0), ("num_envs", 1), ("buffer_size", 1), ("batch_size", 1),
+                        ("learning_starts", 0), ("demonstration_steps", 0), ("n_step", 1), ("challenging_size", 1),
+                        ("eval_every", 0), ("eval_maps", 1), ("save_every", 0), ("torch_threads", 0)):
+        if getattr(args, name) < least:
+            raise ValueError(f"--{name.replace('_', '-')} must be >= {least}, got {getattr(args, name)}")
+    for name in ("hidden", "frame_stack"):
+        if getattr(args, name) is not None and getattr(args, name) < 1:
+            raise ValueError(f"--{name.replace('_', '-')} must be >= 1, got {getattr(args, name)}")
+    for name in ("challenging", "imitation", "gamma", "tau", "beta_start"):
+        if not 0.0 <= getattr(args, name) <= 1.0:
+            raise ValueError(f"--{name.replace('_', '-')} must be in [0, 1], got {getattr(args, name)}")
+    for name in ("stage_steps_scale", "learning_rate", "adam_eps"):
+        if not getattr(args, name) > 0:
+            raise ValueError(f"--{name.replace('_', '-')} must be > 0, got {getattr(args, name)}")
+    for name in ("replay_ratio", "alpha", "sigma0", "margin_loss", "margin", "max_grad_norm"):
+        if not getattr(args, name) >= 0:
+            raise ValueError(f"--{name.replace('_', '-')} must be >= 0, got {getattr(args, name)}")
+
+
+def run_name_of(args: Args) -> str:
+    """--run-name, else CleanRL's unique f"{exp_name}__{seed}__{unix time}"; --resume names the run it continues."""
+    if args.resume and not args.run_name:
+        raise ValueError("--resume needs --run-name (the folder under runs/ to continue)")
+    return args.run_name or f"{args.exp_name}__{args.seed}__{int(time.time())}"
+
+
+def with_network(args: Args, model: dict | None, source: str | None) -> Args:
+    """--hidden and --frame-stack: from the model loaded (a flag that contradicts it is an error), else as
+    given, else the dissertation's."""
+    chosen = {}
+    for flag, key in (("hidden", "hidden"), ("frame_stack", "frames")):
+        given, loaded = getattr(args, flag), None if model is None else model[key]
+        if given is not None and loaded is not None and given != loaded:
+            raise ValueError(f"--{flag.replace('_', '-')} {given} contradicts {source} ({flag.replace('_', ' ')} {loaded})")
+        chosen[flag] = next(v for v in (loaded, given, DISSERTATION[flag]) if v is not None)
+    return replace(args, **chosen)
+
+
+def lineage(path: str | None) -> dict | None:
+    """The parent of a warm start: its path and hash, and from the JSON written beside it (when there is one)
+    its flags, steps, provenance and own parent, so the chain reaches back to the first model trained from
+    scratch."""
+    if not path:
+        return None
+    with open(path, "rb") as f:
+        parent = {"path": path, "sha256": hashlib.sha256(f.read()).hexdigest()}
+    beside = os.path.splitext(path)[0] + ".json"
+    if not os.path.exists(beside):
+        return parent
+    try:
+        with open(beside) as f:
+            record = json.load(f)
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise ValueError(f"{beside}: not a model record ({reason(e)})") from None
+    if not isinstance(record, dict):
+        raise ValueError(f"{beside}: not a model record (a {type(record).__name__}, not a mapping)")
+    return parent | {k: record[k] for k in ("global_step", "stage", "wall_seconds", "machine", "torch_threads",
+                                            "init_from_note", "provenance", "parent", "args") if k in record}
+
+
+def host() -> dict:
+    """The code and the machine of this run, read once at its start."""
+    def git(*command):
+        try:
+            out = subprocess.run(["git", "-C", HERE, *command], capture_output=True, text=True, timeout=30)
+        except (OSError, subprocess.SubprocessError):
+            return None
+        return out.stdout.strip() if out.returncode == 0 else None
+
+    try:
+        with open("/proc/cpuinfo") as f:
+            cpu = next((line.split(":", 1)[1].strip() for line in f if line.startswith("model name")), None)
+    except OSError:
+        cpu = None
+    status = git("status", "--porcelain", "--untracked-files=no")
+    return {"script": f"{SCRIPT}.py", "git_commit": git("rev-parse", "HEAD"),
+            "git_dirty": None if status is None else bool(status), "cpu": cpu or platform.processor() or platform.machine(),
+            "cores": os.cpu_count(), "torch_version": torch.__version__, "python": platform.python_version()}
+
+
+def seed_everything(seed: int, threads: int) -> np.random.Generator:
+    """CleanRL's seeding (random, torch) and torch's CPU threads (0: its default); the run's numpy generator."""
+    random.seed(seed)
+    torch.manual_seed(seed)
+    if threads:
+        torch.set_num_threads(threads)
+    return np.random.default_rng(seed)
+
+
+def start_run(args: Args, n_stages: int) -> tuple:
+    """Seeding, the run folder, the networks and the optimizer, from the checkpoint resumed or the model warm
+    started from. The network's width and frame stack come from that file (a flag contradicting it is an
+    error), else from the flags, else the dissertation's. Only reads: every bad file or flag is a ValueError
+    before anything is written. Returns (args with every default filled in, run folder, online and target
+    networks, optimizer, numpy generator, (global_step, stage index, wall seconds), the parent's lineage)."""
+    rng = seed_everything(args.seed, args.torch_threads)
+    run_name = run_name_of(args)
+    run_dir = os.path.join("runs", run_name)
+    checkpoint = os.path.join(run_dir, "checkpoint.pt")
+    state = load_checkpoint(checkpoint) if args.resume else None
+    warm = read_model(args.init_from) if args.init_from and not args.resume else None
+    if state is not None:
+        args = with_network(args, network_of(state, checkpoint), checkpoint)
+    else:
+        args = with_network(args, None if warm is None else network_of(warm, args.init_from), args.init_from)
+    args = replace(args, run_name=run_name, export=args.export or os.path.join(run_dir, f"{SCRIPT}.pt"))
+    q = QNetwork(args.frame_stack, VIEW, args.hidden, args.sigma0)
+    target = QNetwork(args.frame_stack, VIEW, args.hidden, args.sigma0)
+    optimizer = torch.optim.Adam(q.parameters(), lr=args.learning_rate, eps=args.adam_eps,
+                                 fused=True)  # fused: ~7x faster than the per-tensor loop on CPU
+    progress, parent = (0, 0, 0.0), None
+    if state is not None:
+        if not (isinstance(state["stage"], int) and 0 <= state["stage"] < n_stages):
+            raise ValueError(f"{checkpoint}: stage {state['stage']} of a curriculum of {n_stages} stages")
+        try:
+            q.load_state_dict(state["model"])
+            optimizer.load_state_dict(state["optimizer"])
+            rng.bit_generator.state = state["numpy_rng"]
+            torch.set_rng_state(state["torch_rng"])
+        except UNREADABLE as e:
+            raise ValueError(f"{checkpoint}: does not fit this run "
+                             f"({reason(e)})") from None
+        progress, parent = (state["global_step"], state["stage"], state["wall"]), state.get("parent")
+    elif warm is not None:  # transfer (§7.4.2.2): the mean weights, fresh noise
+        q.load_state_dict(policy_from(warm, args.init_from).state_dict() | {
+            k: v for k, v in q.state_dict().items() if "sigma" in k or "eps" in k})
+        parent = lineage(args.init_from)
+    target.load_state_dict(q.state_dict())
+    return args, run_dir, q, target, optimizer, rng, progress, parent
+
+
+def save_run(run_dir: str, q: QNetwork, optimizer: torch.optim.Optimizer, args: Args, rng: np.random.Generator,
+             global_step: int, stage_index: int, stage_name: str, wall: float, parent: dict | None,
+             machine: dict) -> None:
+    """The checkpoint (runs/RUN/checkpoint.pt) and the export with its JSON: flags, network, steps, the
+    provenance of this code and machine, and the parent model's lineage."""
+    save_checkpoint(os.path.join(run_dir, "checkpoint.pt"), {
+        "model": q.state_dict(), "optimizer": optimizer.state_dict(), "global_step": global_step,
+        "stage": stage_index, "wall": wall, "args": asdict(args), "numpy_rng": rng.bit_generator.state,
+        "torch_rng": torch.get_rng_state(), "parent": parent, **q.network()})
+    threads = torch.get_num_threads()
+    export(q, args, {
+        "global_step": global_step, "stage": stage_name, "wall_seconds": round(wall),
+        "machine": f"{machine['cores']}-core {machine['cpu']}, {threads} torch thread(s)", "torch_threads": threads,
+        "provenance": {**machine, "torch_threads": threads, "env_steps": global_step, "wall_seconds": round(wall, 1),
+                       "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")},
+        "parent": parent})
+
+
+def progress_bar(total: int, initial: int, quiet: bool) -> tqdm:
+    """A bar over environment steps; off with --quiet or when stdout is not a terminal."""
+    return tqdm(total=total, initial=initial, unit="step", unit_scale=True, dynamic_ncols=True,
+                disable=quiet or not sys.stdout.isatty())
+# ============================================================================= end of the shared code
+
+
+# ----------------------------------------------------------------------------- single-agent helpers
+def load_stages(args: Args) -> list[gridworld.EnvConfig]:
+    if not 0.0 <= args.uncommon_patterns <= 1.0 or not 0.0 <= args.uncommon_max < 1.0:
+        raise ValueError(f"--uncommon-patterns {args.uncommon_patterns} and --uncommon-max {args.uncommon_max}: "
+                         "need a chance in [0, 1] and a fraction in [0, 1)")
+    if args.stages:
+        stages = list(gridworld.load_config(args.stages).values())
+    else:
+        stages = [gridworld.EnvConfig.from_dict(s) for s in STAGES if args.camera_stages or s["sensor"] == "full"]
+    if not stages:
+        raise ValueError(f"{args.stages}: no stages")
+    for s in stages:
+        if s.number_agents != 1:
+            raise ValueError(f"stage {s.name}: rainbow_cpp is single-agent (number_agents: 1)")
+        if not isinstance(s.base_steps, int) or s.base_steps <= 0:
+            raise ValueError(f"stage {s.name}: base_steps must be a whole number > 0")
+    return stages
+
+
+def stage_config(stage: gridworld.EnvConfig, args: Args) -> gridworld.EnvConfig:
+    """The stage's settings plus the uncommon-pattern episodes of §6.4.2.5 and a 2-h*w battery
+    top-up for partial resets (gridworld.GridWorldCore.recharge)."""
+    if stage.random_coverage and args.uncommon_patterns > 0:
+        return stage.replace(random_coverage_prob=args.uncommon_patterns, random_coverage_max=args.uncommon_max)
+    return stage
+
+
 def evaluate_policy(q: QNetwork, scenarios: list, frames: int, sensor: str = "full", sensor_range: int = 3,
                     sensor_failure: float = 0.0, heuristic: bool = True, random_ties: bool = False,
-                    dead_ends_first: bool = True) -> dict:
+                    dead_ends_first: bool = True, trajectories: list | None = None) -> dict:
     """Run the deterministic policy (noise off) once on each scenario, all at once; with
     `heuristic` the navigation heuristic takes over when the agent is stuck (§6.5.2.1, the
     conditions of §6.4.2.4) and keeps control for as many new cells as the agent has been stuck
     in this episode, so a policy that keeps falling into loops still finishes the map.
-    Returns per-episode arrays: gridworld's metrics, `truncated` and `heuristic_steps`."""
-    core = gridworld.GridWorldCore(gridworld.EnvConfig(load_state=True, load_random=False, sensor=sensor,
-                                                       sensor_range=sensor_range, sensor_failure=sensor_failure),
-                                   len(scenarios))
+    Returns per-episode arrays: gridworld's metrics, `truncated` and `heuristic_steps`. A list
+    given as `trajectories` is extended with one (T + 1, 1, 2) int array per scenario: the agent's
+    (row, col) at every step from the start, T that episode's own steps."""
+    core = gridworld.GridWorldCore(eval_config(scenarios, sensor, sensor_range, sensor_failure), len(scenarios))
     core.configure(scenarios=scenarios)
     core.reset()
     n = len(scenarios)
@@ -433,6 +817,7 @@ def evaluate_policy(q: QNetwork, scenarios: list, frames: int, sensor: str = "fu
     times_stuck, owed = np.zeros(n, np.int64), np.zeros(n, np.int64)  # owed: new cells left to the heuristic
     steps = np.zeros(n, np.int64)  # each world's own, not counting the waits after its end
     history = [core.agent_cells()[:, 0]] * 6  # cells at t-5 .. t
+    cells = [core.agent_cells()]
     q.reset_noise(False)
     with torch.no_grad():
         while not done.all():
@@ -454,94 +839,44 @@ def evaluate_policy(q: QNetwork, scenarios: list, frames: int, sensor: str = "fu
             since_new = np.where(ev["new"][:, 0], 0, since_new + 1)
             owed = np.maximum(owed - ev["new"][:, 0], 0)
             history = history[1:] + [core.agent_cells()[:, 0]]
+            if trajectories is not None:
+                cells.append(core.agent_cells())
             truncated |= ev["truncated"] & ~done
             done |= ev["terminated"] | ev["truncated"]
             stack.push(observe(core), np.zeros(n, bool))
     q.reset_noise(True)
+    if trajectories is not None:
+        trajectories.extend(world_paths(cells, steps, core.active))
     m = core.metrics()
     return {**m, "steps": steps, "time_save": steps / np.maximum(m["n_poi_start"], 1),
             "rho": steps / np.maximum(core.n_free, 1),
             "truncated": truncated, "heuristic_steps": used}
 
 
-def save_checkpoint(path: str, state: dict) -> None:
-    os.makedirs(os.path.dirname(path) or ".", exist_ok=True)
-    tmp = path + ".tmp"
-    torch.save(state, tmp)
-    os.replace(tmp, path)  # atomic: a crash never leaves half a checkpoint
-
-
-def export(q: QNetwork, args: Args, info: dict) -> None:
-    """Deployable weights: the noisy layers' means only, fp16, plus how they were trained."""
-    weights = {k: v.half() for k, v in q.state_dict().items() if "sigma" not in k and "eps" not in k}
-    os.makedirs(os.path.dirname(args.export) or ".", exist_ok=True)
-    save_checkpoint(args.export, {"weights": weights, "frames": args.frame_stack, "hidden": args.hidden})
-    with open(os.path.splitext(args.export)[0] + ".json", "w") as f:
-        json.dump({"args": asdict(args), **info}, f, indent=1)
-
-
-def load_policy(path: str) -> QNetwork:
-    """A deployable export (or a training checkpoint) as a network with noise off."""
-    if not os.path.exists(path):
-        raise ValueError(f"{path}: no such checkpoint")
-    try:
-        blob = torch.load(path, map_location="cpu", weights_only=False)
-        if not isinstance(blob, dict):
-            raise TypeError(f"a {type(blob).__name__}, not a dict")
-        frames = blob.get("frames") or blob["args"]["frame_stack"]
-        hidden = blob.get("hidden") or blob["args"]["hidden"]
-        weights = blob.get("weights") or blob["model"]
-        q = QNetwork(frames, 41, hidden, 0.0)
-        missing, unexpected = q.load_state_dict({k: v.float() for k, v in weights.items()}, strict=False)
-    except Exception as e:  # any unreadable file is a one-line error
-        raise ValueError(f"{path}: not a rainbow_cpp model "
-                         f"({(str(e).splitlines() or [type(e).__name__])[0]})") from None
-    if unexpected or any("sigma" not in k and "eps" not in k for k in missing):
-        raise ValueError(f"{path}: weights do not match this network")
-    q.reset_noise(False)
-    return q.eval()
-
-
 # ----------------------------------------------------------------------------- training
 def main(args: Args) -> None:
+    # TRY NOT TO MODIFY: flags, files read and seeding; nothing is written before all of them check out
+    check_flags(args)
     stages = load_stages(args)
-    if args.num_envs < 1 or args.buffer_size < 64 * args.num_envs:
-        raise ValueError("need num_envs >= 1 and buffer_size >= 64 * num_envs")
-    random.seed(args.seed)
-    torch.manual_seed(args.seed)
-    rng = np.random.default_rng(args.seed)
-    run_dir = os.path.join("runs", args.run_name)
-    checkpoint = os.path.join(run_dir, "checkpoint.pt")
-    q = QNetwork(args.frame_stack, 41, args.hidden, args.sigma0)
-    target = QNetwork(args.frame_stack, 41, args.hidden, args.sigma0)
-    optimizer = torch.optim.Adam(q.parameters(), lr=args.learning_rate, eps=args.adam_eps,
-                                 fused=True)  # fused: ~7x faster than the per-tensor loop on CPU
-    global_step, stage_index, wall = 0, 0, 0.0
-    if args.resume:
-        if not os.path.exists(checkpoint):
-            raise ValueError(f"{checkpoint}: nothing to resume")
-        state = torch.load(checkpoint, map_location="cpu", weights_only=False)
-        q.load_state_dict(state["model"])
-        optimizer.load_state_dict(state["optimizer"])
-        global_step, stage_index, wall = state["global_step"], state["stage"], state["wall"]
-        rng.bit_generator.state = state["numpy_rng"]
-        torch.set_rng_state(state["torch_rng"])
-    elif args.init_from:
-        q.load_state_dict(load_policy(args.init_from).state_dict() | {
-            k: v for k, v in q.state_dict().items() if "sigma" in k or "eps" in k})
-    target.load_state_dict(q.state_dict())
+    if args.buffer_size < 64 * args.num_envs:
+        raise ValueError(f"--buffer-size {args.buffer_size}: need buffer_size >= 64 * num_envs")
+    eval_set = gridworld.load_dataset(os.path.join(HERE, "maps", "cpp_eval.npz"))
+    args, run_dir, q, target, optimizer, rng, (global_step, stage_index, wall), parent = start_run(args, len(stages))
+    machine = host()
     ends = np.cumsum([max(1, int(s.base_steps * args.stage_steps_scale)) for s in stages])
     total = int(min(ends[-1], args.total_steps or ends[-1]))
+
+    # env setup
     core = gridworld.GridWorldCore(stage_config(stages[stage_index], args), args.num_envs, seed=args.seed + global_step)
     B = args.num_envs
     replay = Replay(args.buffer_size, B, core.V, args.frame_stack, args.n_step, args.gamma, args.alpha)
-    print(f"replay: {replay.bytes_per_transition()} bytes per transition, "
+    print(f"{run_dir}: replay {replay.bytes_per_transition()} bytes per transition, "
           f"{replay.bytes_per_transition() * args.buffer_size / 2**30:.2f} GiB for {args.buffer_size:,}")
     from torch.utils.tensorboard import SummaryWriter
     writer = SummaryWriter(run_dir)
     writer.add_text("hyperparameters", "|param|value|\n|-|-|\n" + "\n".join(f"|{k}|{v}|" for k, v in asdict(args).items()))
-    eval_set = gridworld.load_dataset(os.path.join(os.path.dirname(os.path.abspath(__file__)), "maps", "cpp_eval.npz"))
 
+    # TRY NOT TO MODIFY: start the game
     every = np.arange(B)
     core.reset()
     obs = observe(core)
@@ -557,31 +892,32 @@ def main(args: Args) -> None:
     returns = np.zeros(B)
     starts = core.snapshot()
     challenging: list = []
-    updates_due, last_log, t0 = 0.0, global_step, time.time() - wall
+    yardstick: dict = {}  # stage index -> the heuristic alone on that stage's evaluation maps
+    updates_due, last_log, last_loss_log, t0 = 0.0, global_step, global_step, time.time() - wall
+    latest = ""
     stop = {"now": False}
     previous_handler = signal.signal(signal.SIGINT, lambda *_: stop.update(now=True))  # Ctrl-C: save, exit
+    bar = progress_bar(total, global_step, args.quiet)
 
     def save():
-        save_checkpoint(checkpoint, {"model": q.state_dict(), "optimizer": optimizer.state_dict(),
-                                     "global_step": global_step, "stage": stage_index, "wall": time.time() - t0,
-                                     "args": asdict(args), "numpy_rng": rng.bit_generator.state,
-                                     "torch_rng": torch.get_rng_state()})
-        export(q, args, {"global_step": global_step, "stage": stages[stage_index].name,
-                         "wall_seconds": round(time.time() - t0),
-                         "machine": f"{os.cpu_count()}-core CPU, {torch.get_num_threads()} torch thread(s)"})
+        save_run(run_dir, q, optimizer, args, rng, global_step, stage_index, stages[stage_index].name,
+                 time.time() - t0, parent, machine)
 
     while global_step < total and not stop["now"]:
         if global_step >= ends[stage_index]:  # the next curriculum stage, at each world's next reset
             stage_index += 1
             core.configure(stage_config(stages[stage_index], args))
+        # ALGO LOGIC: put action logic here
         with torch.no_grad():
             action = q(*to_torch(*stack.get())).argmax(1).numpy()
         moved = np.abs(core.agent_cells()[:, 0] - history[0]).sum(1)
         teach = (teacher | continued | stuck(since_new, moved, core.hw.max(1))) & (rng.random(B) < args.imitation)
         label = (core.heuristic_actions(args.heuristic_random_ties, args.heuristic_dead_ends)[:, 0]
                  if teach.any() or args.margin_loss else None)
-        if teach.any():
-            action = np.where(teach, label, action)
+        if teach.any():  # a heuristic without a target (WAIT) leaves the agent its own move
+            action = np.where(teach & (label < gridworld.WAIT), label, action)
+
+        # TRY NOT TO MODIFY: execute the game and log data.
         ev = core.step(action[:, None])
         terminated, truncated = ev["terminated"], ev["truncated"]
         replay.set_transition(slot, action, ev["reward"][:, 0], terminated | (truncated & ~args.peb),
@@ -590,17 +926,21 @@ def main(args: Args) -> None:
         since_new = np.where(ev["new"][:, 0], 0, since_new + 1)
         history = history[1:] + [core.agent_cells()[:, 0]]
         global_step += B
+        bar.update(B)
         carry_on = truncated & args.partial_reset
         if carry_on.any():  # §6.4.2.2: a new battery, the heuristic finishes the episode
             core.recharge(np.flatnonzero(carry_on))
             continued |= carry_on
         ended = terminated | (truncated & ~args.partial_reset)
+
+        # TRY NOT TO MODIFY: save data to replay buffer; handle final_observation
         obs = observe(core)
         slot = replay.add_frames(every, obs, age + 1, ended)
         age += 1
         if ended.any():
             w = np.flatnonzero(ended)
             m = core.metrics()
+            # TRY NOT TO MODIFY: record rewards for plotting purposes
             for i in w:
                 writer.add_scalar("charts/episodic_return", returns[i], global_step)
                 writer.add_scalar("charts/episodic_length", m["steps"][i], global_step)
@@ -625,62 +965,60 @@ def main(args: Args) -> None:
             teacher[w] = global_step < demonstrations_end
             for h in history:
                 h[w] = core.agent_cells()[w, 0]
+        # TRY NOT TO MODIFY: CRUCIAL step easy to overlook
         stack.push(obs, ended)
 
+        # ALGO LOGIC: training.
         if global_step > args.learning_starts:
             updates_due += B * args.replay_ratio / args.batch_size
         while updates_due >= 1:
             updates_due -= 1
             beta = args.beta_start + (1 - args.beta_start) * min(1.0, global_step / total)
-            idx, (m_, e_), a_, ret, (nm, ne), boot, weight = replay.sample(args.batch_size, beta, rng)
-            m_, e_, nm, ne = (torch.from_numpy(np.ascontiguousarray(x)) for x in (m_, e_, nm, ne))
-            with torch.no_grad():  # double DQN: the online net picks, the target net values
-                best = q(nm, ne).argmax(1, keepdim=True)
-                y = torch.from_numpy(ret) + torch.from_numpy(boot) * target(nm, ne).gather(1, best)[:, 0]
-            q_all = q(m_, e_)
-            q_sa = q_all.gather(1, torch.from_numpy(a_)[:, None])[:, 0]
-            loss = (torch.from_numpy(weight.astype(np.float32)) * F.smooth_l1_loss(q_sa, y, reduction="none")).mean()
-            if args.margin_loss:
-                margin_loss = large_margin_loss(q_all, torch.from_numpy(replay.label[idx].astype(np.int64)),
-                                                args.margin)
-                loss = loss + args.margin_loss * margin_loss
-            optimizer.zero_grad()
-            loss.backward()
-            nn.utils.clip_grad_norm_(q.parameters(), args.max_grad_norm)
-            optimizer.step()
-            replay.update_priorities(idx, (y - q_sa).detach().numpy())
-            with torch.no_grad():  # eq. 6.19
-                for p, tp in zip(q.parameters(), target.parameters()):
-                    tp.lerp_(p, args.tau)
-            q.reset_noise()
-            target.reset_noise()
-            if global_step - last_log >= 1000:
-                writer.add_scalar("losses/td_loss", loss.item(), global_step)
-                writer.add_scalar("losses/q_values", q_sa.mean().item(), global_step)
-                if args.margin_loss:
+            td_loss, q_values, margin_loss = learn(q, target, optimizer, replay, args, beta, rng)
+            if global_step - last_loss_log >= 1000:  # the first update after each 1000 steps
+                last_loss_log = global_step
+                writer.add_scalar("losses/td_loss", td_loss.item(), global_step)
+                writer.add_scalar("losses/q_values", q_values.item(), global_step)
+                if margin_loss is not None:
                     writer.add_scalar("losses/margin_loss", margin_loss.item(), global_step)
         if global_step - last_log >= 1000:
             sps = int(global_step / max(time.time() - t0, 1e-9))
             writer.add_scalar("charts/SPS", sps, global_step)
-            print(f"step {global_step:,}/{total:,} stage {stages[stage_index].name} SPS {sps}", flush=True)
+            bar.set_postfix_str(f"{stages[stage_index].name}, SPS {sps}{latest}", refresh=False)
+            if bar.disable and not args.quiet:
+                print(f"step {global_step:,}/{total:,} stage {stages[stage_index].name} SPS {sps}", flush=True)
             last_log = global_step
         if args.eval_every and global_step % args.eval_every < B:
             stage = stages[stage_index]
             pool = [s for s in eval_set if s.obstacles.shape[0] <= max(stage.size, 5)]  # cpp_eval starts at 5
-            m = evaluate_policy(q, pool[::max(1, len(pool) // args.eval_maps)][:args.eval_maps], args.frame_stack,
-                                stage.sensor, stage.sensor_range, random_ties=args.heuristic_random_ties,
-                                dead_ends_first=args.heuristic_dead_ends)
+            pool = pool[::max(1, len(pool) // args.eval_maps)][:args.eval_maps]
+            if stage_index not in yardstick:
+                yardstick[stage_index] = heuristic_baseline(eval_config(pool, stage.sensor, stage.sensor_range), pool,
+                                                            args.heuristic_random_ties, args.heuristic_dead_ends)
+            paths = [] if args.capture_video else None
+            m = evaluate_policy(q, pool, args.frame_stack, stage.sensor, stage.sensor_range,
+                                random_ties=args.heuristic_random_ties, dead_ends_first=args.heuristic_dead_ends,
+                                trajectories=paths)
             result = dict(overlap=float(m["overlap"].mean()), completion=float(m["completed"].mean()),
-                          heuristic_share=float((m["heuristic_steps"] / np.maximum(m["steps"], 1)).mean()))
+                          heuristic_share=float((m["heuristic_steps"] / np.maximum(m["steps"], 1)).mean()),
+                          heuristic_overlap=float(yardstick[stage_index]["overlap"].mean()))
             for k, v in result.items():
                 writer.add_scalar(f"eval/{k}", v, global_step)
-            print(f"eval at {global_step:,}: {result}", flush=True)
+            latest = f", eval overlap {result['overlap']:.3f}"
+            bar.write(f"step {global_step:,}  eval overlap {result['overlap']:.3f} (heuristic "
+                      f"{result['heuristic_overlap']:.3f} on the same maps), completed {100 * result['completion']:.0f}%, "
+                      f"heuristic share {result['heuristic_share']:.2f}")
+            if paths:
+                write_episode_video(pool[0], paths[0], os.path.join(run_dir, "videos", f"step_{global_step}.mp4"),
+                                    stage.sensor, stage.sensor_range)
+        # TRY NOT TO MODIFY: checkpoint and export
         if args.save_every and global_step % args.save_every < B:
             save()
     save()
+    bar.close()
     writer.close()
     signal.signal(signal.SIGINT, previous_handler)
-    print(f"saved {checkpoint} and {args.export} at step {global_step:,}")
+    print(f"saved {os.path.join(run_dir, 'checkpoint.pt')} and {args.export} at step {global_step:,}")
 
 
 if __name__ == "__main__":

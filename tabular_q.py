@@ -11,22 +11,30 @@ int64 per world. Actions are N, S, W, E and the heuristic (§5.3.2), chosen by t
 ε-greedy policy of eq. 5.1 with the three rules of §5.3.3. One Q-table (an open-addressing hash
 table over numpy arrays) is shared by `num_worlds` worlds of one gridworld core that act
 together; Q-learning, SARSA (Algorithm 4), Double Q-learning (Algorithm 5) and Watkins's Q(λ)
-(Algorithm 6) update it. The table is written as .npz (keys, Q-values, visit counts, K and r)
-with a .json beside it recording how it was trained and the learning curve (mean ρ per
+(Algorithm 6) update it. The table is written as .npz (keys, Q-values, visit counts, K and r),
+by default to runs/RUN_NAME/tabular_q.npz (RUN_NAME = {exp_name}__{seed}__{unix time} unless
+--run-name; models/ only when --table-path names it), with a .json beside it recording how it
+was trained (flags, git commit, CPU, date, wall time) and the learning curve (mean ρ per
 `curve_window` episodes).
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
+import shlex
+import subprocess
+import sys
 import time
 import zipfile
 import zlib
 from dataclasses import asdict, dataclass
+from datetime import UTC, datetime
 
 import numpy as np
 import tyro
+from tqdm import tqdm
 
 import gridworld
 
@@ -39,6 +47,10 @@ HASH = np.uint64(0x9E3779B97F4A7C15)  # Fibonacci hashing multiplier (2^64 / gol
 
 @dataclass
 class Args:
+    exp_name: str = os.path.basename(__file__)[: -len(".py")]
+    """the name of this experiment (the first part of the default run name)"""
+    run_name: str | None = None
+    """folder under runs/ for the table and its .json; default: {exp_name}__{seed}__{unix time}, new for every run"""
     algorithm: str = "q-learning"
     """TD method: q-learning, sarsa, double-q or watkins (Q(λ) with eligibility traces)"""
     alpha: float = 0.1
@@ -56,7 +68,7 @@ class Args:
     """r: cells sensed in the cardinal directions, r/√2 on the diagonals (§5.2)"""
     sensor: str = "lidar"
     """what builds the map the heuristic plans on (§5.3.1's SLAM map): lidar (line of sight
-    within r) or full (the whole map known)"""
+    within r), camera (the square of side 2r + 1) or full (the whole map known)"""
     heuristic: bool = True
     """the heuristic action (§5.3.2); off, a state whose neighbours are all covered or blocked
     chooses among the four moves"""
@@ -79,14 +91,17 @@ class Args:
     """worlds stepped together (one numpy call for all); they share the table"""
     seed: int = 1
     """seed of the maps, starts and the policy's coin flips"""
-    table_path: str = "runs/tabular_q.npz"
-    """where the table is written (and its .json of how it was trained)"""
+    table_path: str | None = None
+    """where the table (.npz) is written, its .json of how it was trained beside it; default:
+    runs/RUN_NAME/tabular_q.npz (models/ is written only when named here)"""
     init_table: str | None = None
     """continue training this table (it must have the same K and r)"""
     log_every: int = 10_000
     """episodes between progress lines"""
     curve_window: int = 1000
     """episodes per point of the learning curve saved in the .json"""
+    quiet: bool = False
+    """no progress bar (there is none either when stdout is not a terminal)"""
 
 
 # ----------------------------------------------------------------------------- state (§5.3.1)
@@ -223,17 +238,27 @@ class QTable:
             raise ValueError(f"{path}: no such table")
         if not zipfile.is_zipfile(path):
             raise ValueError(f"{path}: not a tabular_q table (not an .npz file)")
+        names = ("keys", "q", "visits", "updates", "memory", "sensor_range")
         try:
             with np.load(path) as data:
-                keys, q, visits, updates = data["keys"], data["q"], data["visits"], data["updates"]
-                k, r = int(data["memory"]), int(data["sensor_range"])
-        except (OSError, ValueError, KeyError, TypeError, EOFError, zipfile.BadZipFile, zlib.error) as e:
+                arrays = {k: data[k] for k in names if k in data.files}
+            keys, q, visits, updates = (arrays[k] for k in names[:4])
+            k, r = int(arrays["memory"]), int(arrays["sensor_range"])
+        except KeyError as e:
+            raise ValueError(f"{path}: not a tabular_q table (no {e} array)") from None
+        except (OSError, ValueError, TypeError, EOFError, zipfile.BadZipFile, zlib.error) as e:
             raise ValueError(f"{path}: not a tabular_q table ({(str(e).splitlines() or [type(e).__name__])[0]})") from None
-        n = len(keys)
+        n = len(keys) if keys.ndim == 1 else -1
         if (keys.dtype != np.int64 or keys.ndim != 1 or q.ndim != 3 or q.shape[1:] != (n, 5)
                 or q.shape[0] not in (1, 2) or visits.shape != (n,) or updates.shape != q.shape
                 or len(np.unique(keys)) != n):
             raise ValueError(f"{path}: not a tabular_q table (arrays of inconsistent shapes)")
+        if q.dtype.kind != "f" or visits.dtype.kind not in "iu" or updates.dtype.kind not in "iu":
+            raise ValueError(f"{path}: not a tabular_q table (Q-values must be floats, counts integers)")
+        if k < 1 or r < 1:
+            raise ValueError(f"{path}: not a tabular_q table (K = {k}, r = {r}; both must be >= 1)")
+        if (visits < 0).any() or (updates < 0).any():
+            raise ValueError(f"{path}: not a tabular_q table (negative visit counts)")
         if (memory, sensor_range) != (None, None) and (k, r) != (memory, sensor_range):
             raise ValueError(f"{path}: trained with K = {k}, r = {r}; this run uses K = {memory}, "
                              f"r = {sensor_range}")
@@ -329,15 +354,26 @@ class Learner:
 
 
 # ----------------------------------------------------------------------------- acting
+def say(bar: tqdm | None, line: str) -> None:
+    """A log line above a live progress bar, else a plain line flushed at once (logs read as they grow)."""
+    if bar is not None and not bar.disable:
+        bar.write(line)
+    else:
+        print(line, flush=True)
+
+
 def play(core: gridworld.GridWorldCore, table: QTable, encoder: Encoder, rng: np.random.Generator,
          episodes: int, heuristic: bool = True, learner: Learner | None = None, source=None,
-         log_every: int = 0, time_limit: float = 0.0) -> dict[str, np.ndarray]:
+         log_every: int = 0, time_limit: float = 0.0, bar: tqdm | None = None,
+         record_paths: bool = False) -> dict[str, np.ndarray]:
     """Run `episodes` episodes on the core's worlds, new ones starting as others end, acting
     with the table (ε-greedy and learning with a learner, greedy without). `source(k)` gives
     the scenarios of k new episodes (fewer leaves worlds idle; None lets the core draw maps).
     Returns per-episode metrics indexed by episode number (order of starting), `order`, the
     episode numbers in the order they ended, and `finished`, how many ended (fewer than
-    `episodes` when `time_limit` seconds ran out first)."""
+    `episodes` when `time_limit` seconds ran out first); with record_paths also `paths`, per
+    episode the (T+1, 1, 2) [row, col] cells of its agent from the start. `bar` counts the
+    episodes that end."""
     B, learn = core.B, learner is not None
     history = np.zeros((B, encoder.memory), np.int64)
     rows, actions = np.zeros(B, np.int64), np.zeros(B, np.int64)
@@ -349,6 +385,10 @@ def play(core: gridworld.GridWorldCore, table: QTable, encoder: Encoder, rng: np
                                                   ("revisits", np.int64), ("completed", bool),
                                                   ("truncated", bool), ("heuristic_steps", np.int64),
                                                   ("order", np.int64))}  # order: episodes as they ended
+    if record_paths:  # the battery ends every episode within ceil(factor * H * W) steps
+        trail = np.zeros((B, math.ceil(core.config.battery_factor * core.H * core.W) + 1, 2), np.int64)
+        length = np.zeros(B, np.int64)
+        paths: list[np.ndarray | None] = [None] * episodes
     started = finished = 0
     more = True
     refill = max(1, B // 16)  # a reset costs about as much as a step: restart worlds in groups
@@ -376,6 +416,8 @@ def play(core: gridworld.GridWorldCore, table: QTable, encoder: Encoder, rng: np
         if len(w) == 0:
             return
         core.reset(w, scenarios=scenarios)
+        if record_paths:
+            trail[w, 0], length[w] = core.agent_cells()[w, 0], 1
         episode[w] = started + np.arange(len(w))
         started += len(w)
         history[w] = 0
@@ -396,6 +438,9 @@ def play(core: gridworld.GridWorldCore, table: QTable, encoder: Encoder, rng: np
         ev = core.step(moves[:, None])
         terminated, done = ev["terminated"], ev["terminated"] | ev["truncated"]
         live = np.flatnonzero(~idle)
+        if record_paths:
+            trail[live, length[live]] = core.agent_cells()[live, 0]
+            length[live] += 1
         go = np.flatnonzero(~idle & ~terminated)  # worlds that act again from s'
         next_rows, next_actions = np.zeros(B, np.int64), np.zeros(B, np.int64)
         next_allowed, next_greedy = np.ones((B, 5), bool), np.ones(B, bool)
@@ -415,18 +460,25 @@ def play(core: gridworld.GridWorldCore, table: QTable, encoder: Encoder, rng: np
             out["truncated"][e] = ev["truncated"][ended]
             out["heuristic_steps"][e] = heuristic_steps[ended]
             out["order"][finished:finished + len(ended)] = e
+            if record_paths:
+                for world, number in zip(ended, e):
+                    paths[number] = trail[world, :length[world], None].copy()
             finished += len(ended)
             idle[ended] = True
+            if bar is not None:
+                bar.update(len(ended))
         if more and (idle.sum() >= refill or idle.all()):
             begin(np.flatnonzero(idle))
         if log_every and finished - last_log >= log_every:
             last_log = finished
             seconds = time.perf_counter() - t0
             recent = out["rho"][out["order"][finished - log_every:finished]]
-            print(f"episodes {finished:,}/{episodes:,}  rho {recent.mean():.4f}  states {table.size - 1:,}  "
-                  f"{finished / seconds:,.0f} episodes/s  {out['steps'][:finished].sum() / seconds:,.0f} "
-                  f"steps/s", flush=True)
+            say(bar, f"episodes {finished:,}/{episodes:,}  rho {recent.mean():.4f} (last {log_every:,})  "
+                     f"states {table.size - 1:,}  {finished / seconds:,.0f} episodes/s  "
+                     f"{out['steps'][out['order'][:finished]].sum() / seconds:,.0f} steps/s  {seconds:,.0f} s")
     out["finished"] = np.array(finished)
+    if record_paths:
+        out["paths"] = paths
     return out
 
 
@@ -462,9 +514,12 @@ def corner_source(args: Args, rng: np.random.Generator):
 
 
 def evaluate_table(table: QTable, scenarios: list[gridworld.Scenario], heuristic: bool = True,
-                   sensor: str = "lidar", seed: int = 0, num_worlds: int = 256) -> dict[str, np.ndarray]:
+                   sensor: str = "lidar", seed: int = 0, num_worlds: int = 256, trajectories: list | None = None,
+                   quiet: bool = False) -> dict[str, np.ndarray]:
     """The greedy policy (no exploration, no learning; never-seen states take the heuristic) on
-    the given scenarios with their starts; per-scenario metrics in the scenarios' order."""
+    the given scenarios with their starts; per-scenario metrics in the scenarios' order. A given
+    `trajectories` list is extended, in the same order, with each episode's (T+1, 1, 2) int array
+    of the agent's [row, col] at every step, T that episode's steps (the start first)."""
     size = max(max(s.obstacles.shape) for s in scenarios)
     core = gridworld.GridWorldCore(env_config(size, size, sensor=sensor, sensor_range=table.sensor_range),
                                    min(num_worlds, len(scenarios)), seed=seed)
@@ -475,9 +530,37 @@ def evaluate_table(table: QTable, scenarios: list[gridworld.Scenario], heuristic
         del queue[:k]
         return taken
 
-    out = play(core, table, Encoder(table.memory, table.sensor_range), np.random.default_rng(seed),
-               len(scenarios), heuristic, source=source)
-    return {k: v for k, v in out.items() if k not in ("order", "finished")}
+    with tqdm(total=len(scenarios), desc="tabular", unit="episode", disable=quiet or not sys.stdout.isatty()) as bar:
+        out = play(core, table, Encoder(table.memory, table.sensor_range), np.random.default_rng(seed),
+                   len(scenarios), heuristic, source=source, bar=bar, record_paths=trajectories is not None)
+    if trajectories is not None:
+        trajectories.extend(out["paths"])
+    return {k: v for k, v in out.items() if k not in ("order", "finished", "paths")}
+
+
+def provenance() -> dict:
+    """What made a run: the code's git commit (dirty: tracked files changed since), the host's
+    CPU and cores, the date (UTC) and the command line."""
+    root = os.path.dirname(os.path.abspath(__file__))
+
+    def git(*command: str) -> str | None:
+        try:
+            done = subprocess.run(["git", *command], cwd=root, capture_output=True, text=True, timeout=10)
+        except (OSError, subprocess.SubprocessError):
+            return None
+        return done.stdout.strip() if done.returncode == 0 else None
+
+    commit = git("rev-parse", "HEAD")
+    status = git("status", "--porcelain", "--untracked-files=no") if commit else None
+    cpu = None
+    try:
+        with open("/proc/cpuinfo") as f:
+            cpu = next((line.split(":", 1)[1].strip() for line in f if line.startswith("model name")), None)
+    except OSError:
+        pass
+    return dict(git_commit=commit, git_dirty=None if status is None else bool(status), cpu=cpu,
+                cores=os.cpu_count(), date=datetime.now(UTC).isoformat(timespec="seconds"),
+                command=shlex.join([os.path.basename(sys.executable), *sys.argv]))
 
 
 # ----------------------------------------------------------------------------- training
@@ -486,11 +569,30 @@ def main(args: Args) -> dict:
         raise ValueError(f"unknown algorithm {args.algorithm!r}; choose from {', '.join(ALGORITHMS)}")
     if not (0 < args.alpha <= 1 and 0 <= args.gamma <= 1 and 0 <= args.lam <= 1):
         raise ValueError("need 0 < alpha <= 1, 0 <= gamma <= 1 and 0 <= lam <= 1")
-    if args.episodes < 1 or args.num_worlds < 1 or args.log_every < 0 or args.curve_window < 1:
-        raise ValueError("episodes, num_worlds and curve_window must be >= 1 (log_every >= 0)")
+    for flag, value, least in (("--episodes", args.episodes, 1), ("--num-worlds", args.num_worlds, 1),
+                               ("--curve-window", args.curve_window, 1), ("--log-every", args.log_every, 0),
+                               ("--time-limit", args.time_limit, 0), ("--memory", args.memory, 1),
+                               ("--sensor-range", args.sensor_range, 1), ("--size", args.size, 2),
+                               ("--number-obstacles", args.number_obstacles, 0)):
+        if value < least:
+            raise ValueError(f"{flag} must be >= {least}, got {value}")
     min_size = args.size if args.min_size is None else args.min_size
+    if not 2 <= min_size <= args.size:
+        raise ValueError(f"--min-size must be in 2..{args.size} (--size), got {min_size}")
     if args.corner_starts and min_size != args.size:
         raise ValueError("--corner-starts needs one map size (min_size = size)")
+    if args.sensor not in gridworld.SENSORS:
+        raise ValueError(f"--sensor must be one of {', '.join(gridworld.SENSORS)}, got {args.sensor!r}")
+    run_name = args.run_name or f"{args.exp_name}__{args.seed}__{int(time.time())}"
+    table_path = args.table_path or os.path.join("runs", run_name, "tabular_q.npz")
+    if not table_path.endswith(".npz") or os.path.isdir(table_path):
+        raise ValueError(f"--table-path {table_path}: must name an .npz file (its .json goes beside it)")
+    parent = os.path.dirname(os.path.abspath(table_path))
+    while not os.path.exists(parent):  # the folders save() would create: can the nearest existing one take them?
+        parent = os.path.dirname(parent)
+    if not os.path.isdir(parent) or not os.access(parent, os.W_OK):
+        raise ValueError(f"--table-path {table_path}: cannot write under {parent}")
+    args = dataclasses.replace(args, run_name=run_name, table_path=table_path)
     encoder = Encoder(args.memory, args.sensor_range)
     tables = 2 if args.algorithm == "double-q" else 1
     if args.init_table:
@@ -505,27 +607,36 @@ def main(args: Args) -> dict:
     rng = np.random.default_rng(args.seed)
     learner = Learner(table, args, args.num_worlds, math.ceil(cfg.battery_factor * args.size ** 2) + 1, rng)
     source = corner_source(args, rng) if args.corner_starts else None
+    made = provenance()
+    print(f"{run_name}: {args.algorithm}, {args.episodes:,} episodes on {args.num_worlds} worlds, maps "
+          f"{min_size}-{args.size} with up to {args.number_obstacles} obstacle(s) -> {table_path}", flush=True)
     start = time.perf_counter()
-    out = play(core, table, encoder, rng, args.episodes, args.heuristic, learner, source, args.log_every,
-               args.time_limit)
+    with tqdm(total=args.episodes, desc=args.algorithm, unit="episode",
+              disable=args.quiet or not sys.stdout.isatty()) as bar:
+        out = play(core, table, encoder, rng, args.episodes, args.heuristic, learner, source, args.log_every,
+                   args.time_limit, bar)
     seconds = time.perf_counter() - start
-    table.save(args.table_path)
     done = out["order"][:int(out["finished"])]
     rho = out["rho"][done]  # in the order the episodes ended
     n = len(rho) // args.curve_window * args.curve_window
-    info = dict(args=asdict(args), episodes=len(done), states=table.size - 1,
+    info = dict(args=asdict(args), run_name=run_name, episodes=len(done), states=table.size - 1,
                 steps=int(out["steps"][done].sum()), wall_seconds=round(seconds, 1),
                 episodes_per_second=round(len(done) / seconds, 1),
                 steps_per_second=round(out["steps"][done].sum() / seconds, 1),
-                machine=f"{os.cpu_count()}-core CPU, one core, numpy {np.__version__}",
+                machine=f"{made['cpu'] or 'CPU'}, {made['cores']} cores (one used), numpy {np.__version__}",
+                **made,
                 final_rho=round(float(rho[-args.curve_window:].mean()), 4),
                 completion=round(float(out["completed"][done].mean()), 4),
                 curve_window=args.curve_window,
                 curve_rho=[round(float(x), 4) for x in rho[:n].reshape(-1, args.curve_window).mean(1)])
-    with open(os.path.splitext(args.table_path)[0] + ".json", "w") as f:
-        json.dump(info, f, indent=1)
+    try:
+        table.save(table_path)
+        with open(os.path.splitext(table_path)[0] + ".json", "w") as f:
+            json.dump(info, f, indent=1)
+    except OSError as e:
+        raise ValueError(f"--table-path {table_path}: cannot write ({e.strerror})") from None
     print(f"{args.algorithm}: {len(done):,} episodes in {seconds:.1f} s ({info['episodes_per_second']:,} "
-          f"episodes/s), {info['states']:,} states, final rho {info['final_rho']} -> {args.table_path}")
+          f"episodes/s), {info['states']:,} states, final rho {info['final_rho']} -> {table_path}")
     return info
 
 

@@ -54,23 +54,24 @@ class Args:
 def plain_loop(args: Args) -> float:
     """Env steps/s of the per-step loop, timed after `learning_starts` steps."""
     env = gridworld.GridWorldEnv(size=args.size, number_obstacles=args.size, obstacles_random=True)
-    q = rainbow_cpp.QNetwork(3, 41, args.hidden, 0.5)
-    target = rainbow_cpp.QNetwork(3, 41, args.hidden, 0.5)
+    V, k = rainbow_cpp.VIEW, 3
+    q = rainbow_cpp.QNetwork(k, V, args.hidden, 0.5)
+    target = rainbow_cpp.QNetwork(k, V, args.hidden, 0.5)
     target.load_state_dict(q.state_dict())
     optimizer = torch.optim.Adam(q.parameters(), lr=5e-5, eps=1.56e-4, fused=True)
     capacity = args.learning_starts + args.steps + 1
-    maps = np.zeros((capacity, 12, 41, 41), np.uint8)
+    maps = np.zeros((capacity, rainbow_cpp.CHANNELS * k, V, V), np.uint8)
     next_maps = np.zeros_like(maps)
-    extras = np.zeros((capacity, 40), np.float32)
+    extras = np.zeros((capacity, 1 + rainbow_cpp.EXTRAS * k), np.float32)
     next_extras = np.zeros_like(extras)
     actions, rewards, dones = np.zeros(capacity, np.int64), np.zeros(capacity, np.float32), np.zeros(capacity, bool)
     tree = rainbow_cpp.SumTree(capacity)
     rng = np.random.default_rng(0)
-    frames = collections.deque(maxlen=3)
+    frames = collections.deque(maxlen=k)
 
     def stacked(obs, new_episode):
-        extra = np.concatenate([obs["last_action"], obs["out_of_bounds"].ravel() / 100])
-        for _ in range(3 if new_episode else 1):
+        extra = np.concatenate([obs["last_action"], obs["out_of_bounds"].ravel() / rainbow_cpp.OUT_OF_BOUNDS_SCALE])
+        for _ in range(k if new_episode else 1):
             frames.append((obs["map"], extra))
         return (np.concatenate([f[0] for f in frames]),
                 np.concatenate([obs["battery"], *[f[1] for f in frames]]).astype(np.float32))
@@ -131,7 +132,7 @@ def batched_trainer(args: Args, workdir: str) -> float:
                                hidden=args.hidden, replay_ratio=args.replay_ratio,
                                batch_size=args.trainer_batch_size or args.batch_size, num_envs=args.num_envs,
                                buffer_size=64 * args.num_envs * 64, eval_every=0, save_every=0,
-                               run_name=os.path.join(workdir, "runs"),
+                               run_name=os.path.join(workdir, "runs"), quiet=True,
                                export=os.path.join(workdir, "model.pt"))
         t0 = time.perf_counter()
         rainbow_cpp.main(run)

@@ -1,4 +1,6 @@
 """Fixtures shared by the trainers' tests."""
+import signal
+
 import pytest
 
 import gridworld as gw
@@ -16,3 +18,11 @@ def heuristic_ties(monkeypatch) -> list:
 
     monkeypatch.setattr(gw.GridWorldCore, "heuristic_actions", recording)
     return seen
+
+
+@pytest.fixture
+def restore_sigint():
+    """The trainers catch Ctrl-C while they run; a test that fails inside one leaves the handler as it was."""
+    old = signal.getsignal(signal.SIGINT)
+    yield
+    signal.signal(signal.SIGINT, old)

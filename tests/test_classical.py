@@ -7,8 +7,10 @@ Scenarios are prepared as the CLI's `load_scenarios` does: the start cells are c
 """
 from __future__ import annotations
 
+import hashlib
 import json
 import math
+import re
 import subprocess
 import sys
 from collections import deque
@@ -615,16 +617,13 @@ def test_cli_boustrophedon_on_an_external_map(tmp_path):
     out = tmp_path / "rows.jsonl"
     r = _cli("--planner", "boustrophedon", "--maps", "maps/external/random-8-8-20.map", "--out", str(out))
     assert r.returncode == 0, r.stderr
-    lines = [ln for ln in r.stdout.splitlines() if ln.strip()]
-    summary = json.loads(lines[-1])
-    assert summary["planner"] == "boustrophedon"
-    assert summary["scenarios"] == 1 and summary["agents"] == 1
-    assert summary["overlap_mean"] >= 0
-    assert summary["time_save_mean"] >= 1.0  # 51 free cells, 50 to cover: >= 50 steps
-    assert summary["plan_ms_per_map"] >= 0
     (row,) = [json.loads(ln) for ln in out.read_text().splitlines()]
     assert row["size"] == [8, 8] and row["completed"] is True
     assert row["n_poi_start"] == 50 and row["steps"] >= 50 and row["lower_bound"] == 50
+    (line,) = [ln for ln in r.stdout.splitlines() if ln.strip()]  # one readable line, no progress bar (not a tty)
+    assert line.startswith("boustrophedon: 1 scenario(s), 1 agent(s) each, ") and line.endswith(f"-> {out}")
+    assert f"mean overlap {row['overlap']:.4f}" in line and f"mean time-save factor {row['time_save']:.4f}" in line
+    assert "planning " in line and "{" not in line
 
 
 def test_cli_bad_planner_is_a_one_line_error():
@@ -642,3 +641,147 @@ def test_cli_single_agent_planner_with_several_agents_is_a_one_line_error():
     err = r.stderr.strip()
     assert "Traceback" not in r.stderr
     assert err.startswith("error: ") and "\n" not in err and "single-agent" in err, err
+
+
+def _one_line_error(r, *words):
+    assert r.returncode != 0
+    assert "Traceback" not in r.stderr
+    err = r.stderr.strip()
+    assert err.startswith("error: ") and "\n" not in err, err
+    for w in words:
+        assert w in err, err
+    return err
+
+
+def _args(**kw) -> cc.Args:
+    return cc.Args(**{"maps": (str(EXTERNAL / "random-8-8-20.map"),), "quiet": True, **kw})
+
+
+@pytest.fixture
+def bad_maps(tmp_path):
+    """Map files a user could pass by mistake: empty, binary, ragged rows, a bad MovingAI header."""
+    files = {"empty.map": b"", "binary.txt": bytes(range(256)), "ragged.txt": b"...\n..\n",
+             "header.map": b"type octile\nheight 2\nwidth 9\nmap\n..\n..\n", "blank.txt": b"\n\n"}
+    for name, data in files.items():
+        (tmp_path / name).write_bytes(data)
+    return {name: str(tmp_path / name) for name in files}
+
+
+@pytest.mark.parametrize("kw, message", [
+    (dict(planner="nope"), "unknown planner 'nope'"),
+    (dict(agents=0), "--agents must be >= 1"),
+    (dict(agents=-2), "--agents must be >= 1"),
+    (dict(agents=52), "51 free cells for 52 agents"),
+    (dict(limit=-1), "--limit must be >= 0"),
+    (dict(maps=()), "give --maps FILE... or --dataset FILE"),
+    (dict(maps=(), dataset="no/such.npz"), "no/such.npz"),
+    (dict(maps=(str(EXTERNAL / "references.json"),)), "references.json"),
+    (dict(planner="spiral-stc", agents=2), "single-agent"),
+    (dict(out="no/such/folder/rows.jsonl"), "no such folder"),
+])
+def test_bad_requests_are_value_errors_naming_the_flag_or_file(tmp_path, kw, message):
+    with pytest.raises(ValueError, match=re.escape(message)):
+        cc.main(_args(**kw))
+    assert not list(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("name", ["empty.map", "binary.txt", "ragged.txt", "header.map", "blank.txt"])
+def test_bad_map_files_are_value_errors_naming_the_file(bad_maps, name):
+    with pytest.raises(ValueError, match=re.escape(bad_maps[name])):
+        cc.main(_args(maps=(bad_maps[name],)))
+
+
+def test_bad_dataset_files_are_value_errors_naming_the_file(tmp_path, bad_maps):
+    for path in (bad_maps["binary.txt"], bad_maps["empty.map"], str(tmp_path / "missing.npz")):
+        with pytest.raises(ValueError, match=re.escape(path)):
+            cc.main(_args(maps=(), dataset=path))
+
+
+def test_report_flags_are_checked_before_anything_runs(tmp_path):
+    with pytest.raises(ValueError, match="--per-size must be >= 1"):
+        cc.main(cc.Args(report=True, per_size=0, out=str(tmp_path)))
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(ValueError, match="not a folder"):
+        cc.main(cc.Args(report=True, out=str(tmp_path / "file")))
+    assert [p.name for p in tmp_path.iterdir()] == ["file"]
+
+
+def test_cli_bad_inputs_are_one_line_errors_and_write_nothing(tmp_path, bad_maps):
+    out = tmp_path / "rows.jsonl"
+    _one_line_error(_cli("--maps", bad_maps["binary.txt"], "--out", str(out)), bad_maps["binary.txt"])
+    _one_line_error(_cli("--dataset", str(tmp_path / "missing.npz"), "--out", str(out)), "missing.npz")
+    _one_line_error(_cli("--maps", "maps/external/empty-8-8.map", "--agents", "65", "--out", str(out)), "64 free cells")
+    _one_line_error(_cli("--maps", "maps/external/empty-8-8.map", "--limit", "-3", "--out", str(out)), "--limit")
+    _one_line_error(_cli("--report", "--per-size", "0", "--out", str(tmp_path)), "--per-size")
+    assert not out.exists()
+
+
+def _tiny_report_maps(monkeypatch):
+    """The report's map subsets cut to a few small maps (2 per size band, 2 external episodes, 3 layouts), so
+    that `compare` runs in seconds."""
+    cpp, ext, marl = cc.cpp_eval_subset, cc.external_episodes, cc.marl_eval_subset
+
+    def cpp_subset(per_size):
+        scenarios, sizes = cpp(per_size)
+        keep = np.flatnonzero(sizes <= 8)
+        return [scenarios[i] for i in keep], sizes[keep]
+
+    monkeypatch.setattr(cc, "cpp_eval_subset", cpp_subset)
+    monkeypatch.setattr(cc, "REPORT_BANDS", ((5, 6), (7, 8)))
+    monkeypatch.setattr(cc, "external_episodes", lambda: [e for e in ext() if e[0] == "empty-8-8.map"][:2])
+    monkeypatch.setattr(cc, "marl_eval_subset", lambda agents, every=cc.MARL_EVERY: tuple(
+        x[:3] for x in marl(agents, every)))
+
+
+def _hashes(folder: Path) -> dict:
+    return {str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
+            for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+def test_report_writes_into_out_only(tmp_path, monkeypatch, capsys):
+    _tiny_report_maps(monkeypatch)
+    committed = _hashes(ROOT / "results")
+    cc.main(cc.Args(report=True, per_size=1, out=str(tmp_path / "new" / "folder"), quiet=True))
+    assert _hashes(ROOT / "results") == committed  # the committed results are left alone
+    assert [p.name for p in (tmp_path / "new" / "folder").iterdir()] == ["classical_cpp.json"]
+    saved = json.loads((tmp_path / "new" / "folder" / "classical_cpp.json").read_text())
+    assert saved["per_size"] == 1 and list(saved["cpp_eval"]) == list(cc.REPORT_PLANNERS)
+    assert list(saved["cpp_eval"]["lkh"]) == ["plan_ms_per_map", "all", "5-6", "7-8"]
+    (per,) = saved["external"].values()
+    assert list(saved["external"]) == ["empty-8-8.map"] and list(per) == list(cc.REPORT_PLANNERS)
+    refs = REFERENCES["empty-8-8.map"][:2]
+    assert per["greedy"] == [r["greedy_overlap"] for r in refs] and per["lkh"] == [r["lkh_overlap"] for r in refs]
+    assert list(saved["marl_eval"]) == ["2", "5", "10"] and saved["marl_eval"]["5"]["maps"] == 3
+    assert saved["marl_every"] == cc.MARL_EVERY and saved["marl_sizes"][0] >= cc.MARL_MIN_SIZE
+    for entry in saved["marl_eval"].values():
+        assert entry["lower_bound_time_save"] <= min(entry["greedy"], entry["partition"])
+    printed = capsys.readouterr().out
+    assert cc.tables(saved) in printed and "| lkh |" in printed and "| empty-8-8.map | 0.000 |" in printed
+
+
+def test_evaluate_moves_the_bar_and_times_the_planning():
+    scenarios = [load_external("empty-8-8.map", [0, 0]), load_external("random-8-8-20.map", [0, 0])]
+
+    class Bar:
+        n = 0
+
+        def update(self, k):
+            self.n += k
+
+    for name in ("greedy", "boustrophedon"):
+        bar = Bar()
+        rows, ms = cc.evaluate(name, scenarios, bar)
+        assert bar.n == 2 and len(rows) == 2 and ms >= 0
+        assert rows[0]["overlap"] == 0.0 and rows[0]["steps"] == 63
+
+
+
+def test_write_json_is_all_or_nothing(tmp_path):
+    path = tmp_path / "sub" / "x.json"
+    assert cc.write_json(str(path), {"a": [1, 2]}) == str(path) and json.loads(path.read_text()) == {"a": [1, 2]}
+    with pytest.raises(TypeError):
+        cc.write_json(str(path), {"a": object()})
+    assert json.loads(path.read_text()) == {"a": [1, 2]} and [p.name for p in path.parent.iterdir()] == ["x.json"]
+    (tmp_path / "file").write_text("")
+    with pytest.raises(ValueError, match="cannot write"):
+        cc.write_json(str(tmp_path / "file" / "x.json"), {})

@@ -60,3 +60,16 @@ def test_ch5_sets():
         assert s.obstacles.sum() >= k
     data = np.load(MAPS / "ch5_eval.npz")
     assert len(data["size"]) == 42 * 100
+
+
+def test_main_regenerates_every_committed_dataset_exactly(tmp_path, capsys):
+    make_datasets.main(make_datasets.Args(out=str(tmp_path)))
+    names = ["cpp_eval", "p2p_eval", "marl_eval", "ch5_6x6", "ch5_eval", "structured_eval"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(f"{n}.npz" for n in names)
+    for name in names:
+        with np.load(MAPS / f"{name}.npz") as committed, np.load(tmp_path / f"{name}.npz") as fresh:
+            assert sorted(committed.files) == sorted(fresh.files)
+            for key in committed.files:
+                assert committed[key].dtype == fresh[key].dtype
+                np.testing.assert_array_equal(committed[key], fresh[key], err_msg=f"{name}: {key}")
+    assert len(capsys.readouterr().out.splitlines()) == len(names)  # one line per file, no bar off a terminal

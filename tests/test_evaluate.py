@@ -1,4 +1,4 @@
-"""evaluate.py: episodes.csv / summary.json for the planners, hand-counted metrics, bad input."""
+"""evaluate.py: episodes.csv / summary.json, hand-counted metrics, starts, the summary line, --compare."""
 import csv
 import json
 import subprocess
@@ -95,24 +95,6 @@ def test_more_agents_than_cells_and_bad_map_file(tmp_path):
     assert "Traceback" not in result.stderr
 
 
-def test_report_redraws_from_saved_results(tmp_path):
-    import shutil
-    shutil.copy(ROOT / "results" / "classical_cpp.json", tmp_path / "classical_cpp.json")
-    shutil.copytree(ROOT / "results" / "tabular", tmp_path / "tabular")  # saved, so nothing re-runs
-    for saved in ("rainbow_cpp.json", "rainbow_marl.json"):
-        if (ROOT / "results" / saved).exists():
-            shutil.copy(ROOT / "results" / saved, tmp_path / saved)
-    evaluate.report(evaluate.ReportArgs(out=str(tmp_path), reuse=True))
-    text = (tmp_path / "RESULTS.md").read_text()
-    for figure in ("planners_overlap_by_size.png", "planners_external.png", "marl_baselines.png"):
-        assert (tmp_path / figure).stat().st_size > 10_000 and figure in text
-    saved = json.loads((tmp_path / "classical_cpp.json").read_text())
-    assert f"| lkh | {saved['cpp_eval']['lkh']['5-10']:.3f} |" in text
-    learned = ((not (ROOT / "models" / "rainbow_marl.pt").exists())
-               + 3 * (not (ROOT / "models" / "rainbow_cpp.pt").exists()))  # marl's section, rainbow's 3
-    assert text.count("*Not trained yet:*") == learned  # learned agents without a model say so
-
-
 def test_sensor_settings_are_refused_for_planners(tmp_path):
     with pytest.raises(ValueError, match="full information"):
         evaluate.main(evaluate.Args(policy="greedy", dataset=str(ROOT / "maps/cpp_eval.npz"),
@@ -135,3 +117,63 @@ def test_rainbow_policy_end_to_end(tmp_path):
     assert all(int(r["heuristic_steps"]) == 0 for r in rows)
     _, rows = run(tmp_path, sensor="camera", **kw)
     assert len(rows) == 3
+
+
+def test_drawn_starts_do_not_depend_on_the_map_list(tmp_path):
+    for name in ("a.txt", "b.txt"):
+        (tmp_path / name).write_text("......\n.@@...\n......\n...@..\n")
+    a, b = str(tmp_path / "a.txt"), str(tmp_path / "b.txt")
+    for agents in (1, 3):
+        alone = evaluate.scenarios_from(evaluate.Args(maps=(b,), seed=7, agents=agents))
+        after = evaluate.scenarios_from(evaluate.Args(maps=(a, b), seed=7, agents=agents))
+        assert [n for n, _ in after] == ["a.txt", "b.txt"]
+        assert alone[0][1].starts.tolist() == after[1][1].starts.tolist()
+    # the same layout under two names: seeded by the name, so (almost surely) other starts for some seed
+    drawn = [[s.starts.tolist() for _, s in evaluate.scenarios_from(evaluate.Args(maps=(a, b), seed=k))]
+             for k in range(4)]
+    assert any(x != y for x, y in drawn)
+
+
+def test_references_json_starts_and_step_counts(tmp_path):
+    # the file's own format ({name: [{"start": ..., "greedy_steps": ...}]}) for a subset of its maps
+    maps = [ROOT / "maps/external/empty-8-8.map", ROOT / "maps/external/random-8-8-20.map"]
+    refs = json.loads((ROOT / "maps/external/references.json").read_text())
+    _, rows = run(tmp_path, policy="greedy", maps=tuple(map(str, maps)),
+                  starts=str(ROOT / "maps/external/references.json"))
+    expected = [(m.name, e["start"], e["greedy_steps"]) for m in maps for e in refs[m.name]]
+    assert [(r["map"], json.loads(r["start"])[0], int(r["steps"])) for r in rows] == expected
+
+
+def test_summary_line_is_readable(tmp_path, capsys):
+    path = tmp_path / "corridor.txt"
+    path.write_text(".....\n")
+    starts = tmp_path / "starts.json"
+    starts.write_text(json.dumps({"corridor.txt": [[0, 2], [0, 0]]}))  # overlaps 2/4 and 0
+    run(tmp_path, policy="greedy", maps=(str(path),), starts=str(starts))
+    first = capsys.readouterr().out.splitlines()[0]
+    assert first == "greedy on 2 episodes: overlap 0.250 (median 0.250), time-save 1.250, completed 100%"
+
+
+def test_compare_runs_the_same_episodes(tmp_path, capsys):
+    corridor, room = tmp_path / "corridor.txt", tmp_path / "room.txt"
+    corridor.write_text(".....\n")
+    room.write_text("......\n......\n..@@..\n......\n")
+    starts = tmp_path / "starts.json"
+    starts.write_text(json.dumps({"corridor.txt": [[0, 2]], "room.txt": [[0, 0], [3, 5]]}))
+    kw = dict(maps=(str(corridor), str(room)), starts=str(starts))
+    run(tmp_path, policy="greedy", compare="lkh,boustrophedon", **kw)
+    table = json.loads((tmp_path / "out" / "compare.json").read_text())
+    md = (tmp_path / "out" / "compare.md").read_text()
+    printed = capsys.readouterr().out
+    assert table["policies"] == ["greedy", "lkh", "boustrophedon"] and table["episodes"] == 3
+    assert list(table["by_map"]) == ["corridor.txt", "room.txt"]
+    for policy in table["policies"]:
+        alone, rows = run(tmp_path / policy, policy=policy, **kw)  # each policy on its own: the same numbers
+        assert table["all"][policy]["overlap"] == pytest.approx(alone["all"]["overlap"]["mean"], abs=1e-4)
+        room_rows = [float(r["overlap"]) for r in rows if r["map"] == "room.txt"]
+        assert table["by_map"]["room.txt"][policy]["overlap"] == pytest.approx(np.mean(room_rows), abs=1e-4)
+    assert table["by_map"]["corridor.txt"]["lkh"] == dict(episodes=1, overlap=0.5, time_save=1.5, completion_rate=1.0)
+    line = f"| lkh | {table['all']['lkh']['overlap']:.3f} | {table['all']['lkh']['time_save']:.3f} | 100% |"
+    assert line in md and line in printed
+    assert "| corridor.txt | 1 | 0.500 | 0.500 |" in md  # by map (2 maps <= 12): greedy and lkh both sweep 2 + 4
+    assert not (tmp_path / "out" / "compare.png").exists()  # only with --video

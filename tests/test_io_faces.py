@@ -831,6 +831,45 @@ def test_parallel_api(kwargs):
     parallel_api_test(gridworld.parallel_env(**kwargs), num_cycles=100)
 
 
+def test_parallel_env_is_a_module_level_class_that_pickles_and_keeps_stepping():
+    import pickle
+
+    from pettingzoo import ParallelEnv
+    env = gridworld.parallel_env(size=8, number_agents=3, number_obstacles=6, sensor="lidar")
+    assert type(env) is gridworld.GridWorldParallelEnv and isinstance(env, ParallelEnv)
+    env.reset(seed=2)
+    env.step(env.heuristic_actions())
+    copy = pickle.loads(pickle.dumps(env))
+    assert copy.agents == env.agents
+    for _ in range(40):  # same actions, same worlds: the copy's views and windows follow its own arrays
+        if not env.agents:
+            break
+        actions = env.heuristic_actions()
+        a, b = env.step(actions), copy.step(actions)
+        assert a[1] == b[1] and a[2] == b[2] and a[3] == b[3]
+        for agent in a[0]:
+            for key in ("map", "out_of_bounds", "last_action", "battery"):
+                np.testing.assert_array_equal(a[0][agent][key], b[0][agent][key])
+    np.testing.assert_array_equal(copy.core.covered, env.core.covered)
+    assert not np.shares_memory(copy.core.canvas, env.core.canvas)
+    assert np.shares_memory(copy.core.windows, copy.core.canvas)
+    copy.configure(size=6)  # the copy can still be reconfigured like any face
+    copy.reset(seed=0)
+    assert copy.core.hw[0].tolist() == [6, 6]
+
+
+def test_vector_reset_seeds_np_random_as_gymnasium_does():
+    env = GridWorldVectorEnv(2, size=5)
+    env.reset(seed=7)
+    assert env.np_random_seed == 7
+    assert env.np_random.random() == np.random.default_rng(7).random()
+    other = GridWorldVectorEnv(2, size=5)
+    other.reset(seed=7)
+    first = other.np_random.random()
+    other.reset()  # no seed: the generator carries on
+    assert other.np_random_seed == 7 and other.np_random.random() != first
+
+
 def test_parallel_number_agent_random_agents_list():
     env = gridworld.parallel_env(size=8, number_agents=4, number_agent_random=True)
     counts = set()

@@ -13,7 +13,6 @@ Every expectation is a rule of the world or counted by hand on a tiny map:
 from __future__ import annotations
 
 import json
-import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -27,13 +26,6 @@ import gridworld as gw
 import rainbow_marl as rm
 
 ROOT = Path(__file__).resolve().parent.parent
-
-
-@pytest.fixture
-def restore_sigint():
-    old = signal.getsignal(signal.SIGINT)
-    yield
-    signal.signal(signal.SIGINT, old)
 
 
 STAGES = """\

@@ -447,6 +447,26 @@ def test_compression_30(tmp_path):
     np.testing.assert_array_equal(m1[:, 4, 20], OBST)
 
 
+def test_frame_features_are_last_action_then_scaled_out_of_bounds(tmp_path):
+    """The 30x30 case above: agent 0's out_of_bounds [[6, 85], [0, 0], [0, 0], [7, 189]] / 100 after
+    its WAIT one-hot, per agent, the leading (B, N) axes kept; the sizes trainers read are exported."""
+    obst = np.zeros((30, 30), bool)
+    obst[4, 10:15] = True
+    cov = np.zeros((30, 30), bool)
+    cov[0:3] = True
+    obs = make_core(tmp_path, obst, [[25, 3], [15, 15]], cov).observe()
+    f = gw.frame_features(obs)
+    assert f.shape == (1, 2, gw.FRAME_FEATURES) == (1, 2, 13) and f.dtype == np.float32
+    np.testing.assert_allclose(f[0, 0], [0, 0, 0, 0, 1, 0.06, 0.85, 0, 0, 0, 0, 0.07, 1.89], rtol=1e-6)
+    np.testing.assert_array_equal(f[0, 1], [0, 0, 0, 0, 1] + [0] * 8)
+    assert gw.OUT_OF_BOUNDS_SCALE == 100 and gw.VIEW_SIZE == EnvConfig().view_size == V
+    space = gw.agent_observation_space(EnvConfig())
+    assert space["map"].shape == (4, gw.VIEW_SIZE, gw.VIEW_SIZE)
+    assert space["last_action"].shape[0] + np.prod(space["out_of_bounds"].shape) == gw.FRAME_FEATURES
+    assert space["battery"].shape == (gw.BATTERY_FEATURES,)
+    assert gw.agent_observation_space(EnvConfig(view_size=11))["map"].shape == (4, 11, 11)
+
+
 def test_no_compression_up_to_20(tmp_path):
     """A 20x20 map fits (offsets within +-19); a 21x21 map compresses from the far corner."""
     core = make_core(tmp_path, np.zeros((20, 20), bool), [[0, 0]])

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import json
 import os
-import signal
 
 import numpy as np
 import pytest
@@ -601,13 +600,6 @@ def test_replay_single_frame_stack():
 
 
 # ============================================================================ 5. main() smoke run
-@pytest.fixture
-def restore_sigint():
-    old = signal.getsignal(signal.SIGINT)
-    yield
-    signal.signal(signal.SIGINT, old)
-
-
 def small_args(tmp_path, **kw):
     base = dict(run_name="t", total_steps=600, learning_starts=200, hidden=16, num_envs=4, buffer_size=4096,
                 eval_every=400, eval_maps=4, save_every=400, export=str(tmp_path / "m.pt"),
@@ -890,3 +882,37 @@ def test_teacher_and_fallback_use_the_dead_ends_flag(tmp_path, monkeypatch, rest
     rc.main(small_args(tmp_path, total_steps=300, learning_starts=100, save_every=0, eval_every=200,
                        margin_loss=1.0, heuristic_dead_ends=dead_ends))
     assert len(heuristic_ties) > 50 and set(heuristic_ties) == {dead_ends}
+
+
+# ============================================================================ 7. drifts fixed
+def test_losses_are_logged_once_per_1000_steps(tmp_path, monkeypatch, restore_sigint):
+    """Four updates a step (batch 8, replay ratio 8, 4 worlds): still one TD-loss point per 1000 steps."""
+    monkeypatch.chdir(tmp_path)
+    rc.main(small_args(tmp_path, run_name="l", total_steps=1040, learning_starts=960, batch_size=8, replay_ratio=8.0,
+                       eval_every=0, save_every=0))
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+    acc = EventAccumulator(str(next((tmp_path / "runs" / "l").glob("events.out.tfevents*"))))
+    acc.Reload()
+    assert [e.step for e in acc.Scalars("losses/td_loss")] == [1000]
+    assert [e.step for e in acc.Scalars("losses/q_values")] == [1000]
+
+
+def test_a_heuristic_without_a_target_leaves_the_agent_its_move(tmp_path, monkeypatch, restore_sigint):
+    """When the teacher answers WAIT (no target), the agent's own move is taken and stored: WAIT is no
+    action to learn (Q has four outputs), as rainbow_marl does."""
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(gw.GridWorldCore, "heuristic_actions",
+                        lambda self, *a, **k: np.full((self.B, self.N), gw.WAIT))
+    made = []
+
+    class Recorded(rc.Replay):
+        def __init__(self, *a, **k):
+            super().__init__(*a, **k)
+            made.append(self)
+
+    monkeypatch.setattr(rc, "Replay", Recorded)
+    rc.main(small_args(tmp_path, total_steps=400, learning_starts=200, imitation=1.0, margin_loss=1.0,
+                       eval_every=0, save_every=0))
+    stored = made[0].action[made[0].tree.tree[made[0].tree.size:][:len(made[0].action)] > 0]
+    assert len(stored) > 50 and (stored < gw.WAIT).all()
+    assert (made[0].label == -1).all()  # and no WAIT label to imitate

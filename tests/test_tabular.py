@@ -6,6 +6,14 @@ Actions: 0 N, 1 S, 2 W, 3 E, 4 the heuristic; readings r' are ordered N, S, E, W
 """
 from __future__ import annotations
 
+import hashlib
+import json
+import os
+import re
+import shutil
+import subprocess
+import sys
+from datetime import datetime
 from pathlib import Path
 
 import numpy as np
@@ -15,7 +23,8 @@ import gridworld as gw
 import tabular_q as tq
 
 N_, S_, W_, E_, H_ = 0, 1, 2, 3, 4
-CH5_6X6 = str(Path(__file__).resolve().parent.parent / "maps" / "ch5_6x6.npz")
+ROOT = Path(__file__).resolve().parent.parent
+CH5_6X6 = str(ROOT / "maps" / "ch5_6x6.npz")
 
 
 class Coins:
@@ -280,3 +289,67 @@ def test_evaluate_py_runs_a_table_and_refuses_bad_ones(tmp_path):
     with pytest.raises(ValueError, match="trained with r = 3; --sensor-range is 4"):
         evaluate.main(evaluate.Args(policy="tabular", checkpoint=path, dataset=CH5_6X6, limit=1,
                                     sensor_range=4))
+
+
+def test_evaluate_table_records_each_agents_path_in_scenario_order():
+    """1x3 and 3x1 corridors have one path each (the only open neighbour, then the next); the 4x4
+    corners are walked to completion: each trajectory starts at its start, moves one cell at a time
+    and visits every free cell, with T + 1 rows for T steps."""
+    corridor = [gw.Scenario(np.zeros((1, 3), bool), np.array([[0, 0]])),
+                gw.Scenario(np.zeros((3, 1), bool), np.array([[2, 0]]))]
+    corners = [gw.Scenario(np.zeros((4, 4), bool), np.array([c])) for c in ([0, 0], [0, 3], [3, 0], [3, 3])]
+    scenarios = corridor + corners
+    paths: list = []
+    m = tq.evaluate_table(tq.QTable(3, 3), scenarios, seed=0, num_worlds=3, trajectories=paths)
+    assert len(paths) == len(scenarios)
+    assert paths[0].tolist() == [[[0, 0]], [[0, 1]], [[0, 2]]]
+    assert paths[1].tolist() == [[[2, 0]], [[1, 0]], [[0, 0]]]
+    for path, s, steps in zip(paths, scenarios, m["steps"]):
+        assert path.shape == (steps + 1, 1, 2) and path.dtype.kind == "i"
+        assert path[0, 0].tolist() == s.starts[0].tolist()
+        assert (np.abs(np.diff(path[:, 0], axis=0)).sum(1) <= 1).all()
+        assert {tuple(c) for c in path[:, 0].tolist()} == {tuple(c) for c in np.argwhere(~s.obstacles).tolist()}
+    again = tq.evaluate_table(tq.QTable(3, 3), scenarios, seed=0, num_worlds=3)
+    assert (again["steps"] == m["steps"]).all()  # recording changes nothing
+
+
+def test_provenance_names_the_code_the_machine_and_the_date():
+    p = tq.provenance()
+    assert isinstance(p["cores"], int) and p["cores"] >= 1 and (p["cpu"] is None or isinstance(p["cpu"], str))
+    assert datetime.fromisoformat(p["date"]).utcoffset().total_seconds() == 0
+    assert "python" in p["command"]
+    if (ROOT / ".git").exists():
+        assert re.fullmatch(r"[0-9a-f]{40}", p["git_commit"]) and isinstance(p["git_dirty"], bool)
+
+
+def _digest(folder: Path) -> dict[str, str]:
+    return {str(f.relative_to(folder)): hashlib.sha256(f.read_bytes()).hexdigest()
+            for f in sorted(folder.rglob("*")) if f.is_file()}
+
+
+def test_default_run_writes_only_under_runs_and_leaves_models_byte_identical(tmp_path):
+    for f in ROOT.glob("*.py"):
+        shutil.copy(f, tmp_path)
+    for folder in ("maps", "models"):
+        shutil.copytree(ROOT / folder, tmp_path / folder, ignore=shutil.ignore_patterns("__pycache__"))
+    before, models = sorted(os.listdir(tmp_path)), _digest(tmp_path / "models")
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONDONTWRITEBYTECODE": "1"}
+    done = subprocess.run([sys.executable, "tabular_q.py", "--size", "4", "--episodes", "40", "--num-worlds", "8",
+                           "--log-every", "20", "--curve-window", "10"], cwd=tmp_path, env=env,
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert _digest(tmp_path / "models") == models
+    assert sorted(os.listdir(tmp_path)) == sorted(before + ["runs"])
+    (run,) = os.listdir(tmp_path / "runs")
+    assert re.fullmatch(r"tabular_q__1__\d+", run)
+    assert sorted(os.listdir(tmp_path / "runs" / run)) == ["tabular_q.json", "tabular_q.npz"]
+    info = json.loads((tmp_path / "runs" / run / "tabular_q.json").read_text())
+    assert info["run_name"] == info["args"]["run_name"] == run and info["episodes"] == 40
+    assert info["args"]["table_path"] == os.path.join("runs", run, "tabular_q.npz")
+    for key in ("git_commit", "git_dirty", "cpu", "cores", "date", "command", "wall_seconds", "machine",
+                "states", "episodes_per_second", "curve_rho", "curve_window", "final_rho", "completion"):
+        assert key in info
+    assert info["command"].endswith("tabular_q.py --size 4 --episodes 40 --num-worlds 8 --log-every 20 --curve-window 10")
+    assert tq.QTable.load(str(tmp_path / "runs" / run / "tabular_q.npz"), 3, 3).size == info["states"] + 1
+    assert re.search(r"^episodes \d+/40  rho \d\.\d{4} \(last 20\)  states ", done.stdout, re.M)
+    assert re.search(r"^q-learning: 40 episodes in .* -> runs/tabular_q__1__\d+/tabular_q.npz$", done.stdout, re.M)

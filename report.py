@@ -1,0 +1,908 @@
+"""Regenerate results/ in three layers: collect runs the experiments and writes results/*.json, render turns
+those JSON files into RESULTS.md (a pure function of them: no experiment, clock or git), plot draws the PNG
+figures from the same JSON.
+
+    python report.py                              # all: collect every part, render, plot (~25 min of planners)
+    python report.py all --reuse                  # collect only the parts whose JSON is missing, then render, plot
+    python report.py render                       # RESULTS.md from the JSON in results/, nothing re-run
+    python report.py plot --out DIR               # the figures from the JSON in DIR
+    python report.py collect --parts classical --per-size 2 --out DIR
+    python evaluate.py report ...                 # the same commands
+
+Parts (JSON under --out): classical (classical_cpp.json: classical_cpp.compare), rainbow_cpp (rainbow_cpp.json),
+rainbow_marl (rainbow_marl.json), tabular (tabular/fig5_5.json); a learned part is skipped while its model is
+not trained. Read when present, not collected here: tabular/fig5_4/*.json (tabular_q.py training runs) and
+marl_rewards/*/summary.json (evaluate.py runs; README for both). Each collected JSON records where it was made
+under "provenance" (git commit, CPU, cores, torch threads, date, wall time, flags); the models' training is
+described by their own JSON (models/*.json), which collect copies in. Every command writes into a temporary
+folder beside --out and moves the files in only once everything asked for has succeeded.
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from contextlib import contextmanager
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from typing import Annotated
+
+import numpy as np
+import tyro
+from tqdm import tqdm
+
+import classical_cpp
+import evaluate
+import gridworld
+
+ROOT = os.path.dirname(os.path.abspath(__file__))
+RESULTS = os.path.join(ROOT, "results")
+PARTS = {"classical": "classical_cpp.json", "rainbow_cpp": "rainbow_cpp.json", "rainbow_marl": "rainbow_marl.json",
+         "tabular": os.path.join("tabular", "fig5_5.json")}
+MODELS = {"rainbow_cpp": evaluate.DEFAULT_CHECKPOINT["rainbow"], "rainbow_marl": evaluate.DEFAULT_CHECKPOINT["marl"],
+          "tabular": evaluate.DEFAULT_CHECKPOINT["tabular"]}
+SCRIPTS = {"rainbow_cpp": "rainbow_cpp.py", "rainbow_marl": "rainbow_marl.py", "tabular": "tabular_q.py"}
+CH5_EVAL = os.path.join("maps", "ch5_eval.npz")  # Fig. 5.5's maps, with their size and requested obstacles
+CAMERA_RANGE = 3  # the sensor-based evaluation of the rainbow_cpp model (§6.5.3)
+MARL_EVERY, MARL_AGENTS = 10, range(1, 16)  # rainbow_marl: every 10th marl_eval layout, N = 1..15 (Fig. 7.11)
+FAULTY_AT, FAULTY_AGENTS = 0.5, (2, 5, 10)  # §7.5.3.3: the last agent freezes halfway
+REWARDS = ("greedy", "pretrained", "competitive", "cooperative", "size_invariant")  # results/marl_rewards/ runs
+FIGURES = {"planners_by_size": "planners_overlap_by_size.png", "planners_external": "planners_external.png",
+           "marl_baselines": "marl_baselines.png", "rainbow_cpp": "rainbow_overlap_by_size.png",
+           "rainbow_marl": "rainbow_marl_time_save.png", "fig5_4": "tabular_fig5_4.png", "fig5_5": "tabular_fig5_5.png"}
+# The numbers the report holds the results against, each with its source; no other number in the text is typed.
+REFERENCE = {
+    # Table 5.1: training time (s) of 100,000 episodes on 6x6, columns (heuristic, 0 obstacles), (heuristic, 1),
+    # (no heuristic, 0), (no heuristic, 1); and the machine it was measured on
+    "table_5_1_seconds": {"q-learning": (491.1, 492.2, 571.5, 698.9), "sarsa": (615.8, 529.7, 688.9, 791.7),
+                          "double-q": (477.8, 498.4, 1521.5, 1993.6), "watkins": (985.1, 1448.0, 2285.9, 6934.1)},
+    "table_5_1_machine": "AMD Ryzen 7 5800H, one episode at a time",
+    "fig_5_5_episodes": 17_500_000,  # Fig. 5.5: training episodes of the dissertation's table
+    "fig_5_5_maps": 1000,  # Fig. 5.5: evaluation maps per (size, obstacles) setting
+    "rho_perfect": 1,  # §5.4.1: ρ of a perfect sweep
+    # the repository's acceptance targets for the learned agents (issues #5 and #7)
+    "rainbow_cpp_sizes": (5, 20), "rainbow_cpp_completion": 1.0, "rainbow_cpp_overlap": 0.05,
+    "rainbow_marl_time_save": {"2": 0.53, "5": 0.30, "10": 0.15},  # mean t_sf on marl_eval
+}
+NOT_COLLECTED = ("*Not collected:* no `{file}` here; `python report.py collect --parts {part}` fills it in "
+                 "once `{model}` is trained (`{script}`).")
+
+
+# ----------------------------------------------------------------------------- reading and writing
+def read_json(path: str) -> dict:
+    """A JSON object from `path`; ValueError naming the file if it cannot be read or is not one."""
+    try:
+        with open(path) as f:
+            data = json.load(f)
+    except OSError as e:
+        raise ValueError(f"{path}: cannot read ({e.strerror})") from None
+    except (UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise ValueError(f"{path}: not a JSON file ({e})") from None
+    if not isinstance(data, dict):
+        raise ValueError(f"{path}: not a JSON object")
+    return data
+
+
+@contextmanager
+def reading(path: str):
+    """Turn a results JSON that lacks an entry or holds the wrong kind of value into a ValueError naming it."""
+    try:
+        yield
+    except (KeyError, TypeError, IndexError, AttributeError, ValueError, ZeroDivisionError) as e:
+        raise ValueError(f"{path}: unexpected content ({type(e).__name__}: {e})") from None
+
+
+@contextmanager
+def staged(out: str):
+    """A temporary folder beside `out`; its files replace those of `out` only if the block succeeds."""
+    if os.path.exists(out) and not os.path.isdir(out):
+        raise ValueError(f"--out {out}: not a folder")
+    parent = os.path.dirname(os.path.abspath(out))
+    while not os.path.isdir(parent):  # the nearest folder there is, so a failing run creates none
+        parent = os.path.dirname(parent)
+    try:
+        tmp = tempfile.mkdtemp(prefix=".report-", dir=parent)
+    except OSError as e:
+        raise ValueError(f"--out {out}: cannot write ({e.strerror})") from None
+    try:
+        yield tmp
+        for folder, _, files in os.walk(tmp):
+            for name in files:
+                rel = os.path.relpath(os.path.join(folder, name), tmp)
+                os.makedirs(os.path.dirname(os.path.join(out, rel)), exist_ok=True)
+                os.replace(os.path.join(tmp, rel), os.path.join(out, rel))
+    except OSError as e:
+        raise ValueError(f"--out {out}: cannot write ({e.strerror})") from None
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+def load_results(*folders: str) -> dict:
+    """Every results JSON there is, each from the first of `folders` holding it: the parts (None where missing),
+    the tabular training runs of Fig. 5.4 and the reward-structure evaluations, and the path of each."""
+    def find(rel):
+        return next((os.path.join(f, rel) for f in folders if os.path.exists(os.path.join(f, rel))), None)
+
+    results = {"paths": {part: find(rel) for part, rel in PARTS.items()}}
+    if results["paths"]["classical"] is None:
+        raise ValueError(f"{folders[-1]}: no {PARTS['classical']}; run `python report.py collect --out {folders[-1]}`")
+    for part, path in results["paths"].items():
+        results[part] = None if path is None else read_json(path)
+    runs = find(os.path.join("tabular", "fig5_4"))
+    results["paths"]["fig5_4"] = runs
+    results["fig5_4"] = {} if runs is None else {
+        name: read_json(os.path.join(runs, name)) for name in sorted(os.listdir(runs)) if name.endswith(".json")}
+    rewards = {name: find(os.path.join("marl_rewards", name, "summary.json")) for name in REWARDS}
+    results["marl_rewards"] = {name: read_json(path) for name, path in rewards.items() if path is not None}
+    return results
+
+
+# ----------------------------------------------------------------------------- collect
+def _git(*args: str) -> str | None:
+    try:
+        r = subprocess.run(["git", *args], cwd=ROOT, capture_output=True, text=True, timeout=30)
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return r.stdout.strip() if r.returncode == 0 else None
+
+
+def _cpu() -> str | None:
+    try:
+        with open("/proc/cpuinfo") as f:
+            names = [ln.split(":", 1)[1].strip() for ln in f if ln.startswith("model name")]
+    except OSError:
+        return None
+    return names[0] if names else None
+
+
+def provenance(started: float, args: Collect) -> dict:
+    """Where and how a results JSON was collected: the code, the machine, the date, the wall time, the flags."""
+    torch = sys.modules.get("torch")  # imported only by the learned parts
+    commit = _git("rev-parse", "HEAD")
+    return {"git_commit": commit,
+            "git_dirty": None if commit is None else bool(_git("status", "--porcelain", "--untracked-files=no")),
+            "cpu": _cpu(), "cores": os.cpu_count(), "torch_threads": torch.get_num_threads() if torch else None,
+            "torch_version": torch.__version__ if torch else None, "numpy_version": np.__version__,
+            "date": datetime.now(UTC).isoformat(timespec="seconds"),
+            "wall_seconds": round(time.time() - started, 1),
+            "flags": {k: v for k, v in dataclasses.asdict(args).items() if k not in ("out", "quiet")}}
+
+
+def _bar(total: int, desc: str, quiet: bool) -> tqdm:
+    return tqdm(total=total, desc=desc, unit="run", disable=quiet or not sys.stdout.isatty())
+
+
+def _model_json(model: str) -> dict:
+    return read_json(os.path.splitext(model)[0] + ".json")
+
+
+def rainbow_results(per_size: int, p2p_maps: int, model: str, quiet: bool = False) -> dict:
+    """A rainbow_cpp model on cpp_eval (full information with and without the heuristic fallback, camera),
+    p2p_eval and the MovingAI maps; the greedy planners per size beside it."""
+    scenarios, sizes = classical_cpp.cpp_eval_subset(per_size)
+    episodes = [(f"cpp_eval.npz[{z}x{z}]", classical_cpp.with_starts(s)) for s, z in zip(scenarios, sizes)]
+
+    def by_size(rows):
+        out = {}
+        for r in rows:
+            out.setdefault(r["size"].split("x")[0], []).append(r)
+        return {z: dict(overlap=round(float(np.mean([r["overlap"] for r in g])), 4),
+                        overlap_completed=round(float(np.mean([r["overlap"] for r in g if r["completed"]]
+                                                              or [np.nan])), 4),
+                        completion=round(float(np.mean([r["completed"] for r in g])), 4),
+                        heuristic_share=round(float(np.mean([r["heuristic_steps"] / max(r["steps"], 1)
+                                                             for r in g])), 4))
+                for z, g in out.items()}
+
+    result = {"per_size": per_size, "camera_range": CAMERA_RANGE, "model": _model_json(model)}
+    with _bar(7, "rainbow_cpp", quiet) as bar:
+        for key, kw in (("full", {}), ("full_no_heuristic", {"heuristic": False}),
+                        (f"camera_r{CAMERA_RANGE}", {"sensor": "camera", "sensor_range": CAMERA_RANGE})):
+            result[key] = by_size(evaluate.run_rainbow(evaluate.Args(policy="rainbow", checkpoint=model, quiet=quiet, **kw),
+                                                       episodes))
+            bar.update()
+        result["greedy"] = by_size(evaluate.run_planner("greedy", episodes))
+        bar.update()
+        result["greedy_dead_ends"] = by_size(evaluate.run_planner("greedy-dead-ends", episodes))
+        bar.update()
+        p2p = evaluate.scenarios_from(evaluate.Args(dataset=os.path.join(ROOT, "maps", "p2p_eval.npz"), limit=p2p_maps))
+        shortest = [r["steps"] for r in evaluate.run_planner("greedy", p2p)]  # one target: greedy walks a shortest path
+        rows = evaluate.run_rainbow(evaluate.Args(policy="rainbow", checkpoint=model, quiet=quiet), p2p)
+        result["p2p"] = {"maps": len(p2p), "optimal": round(float(np.mean([r["steps"] == b for r, b in
+                                                                            zip(rows, shortest)])), 4),
+                         "completion": round(float(np.mean([r["completed"] for r in rows])), 4),
+                         "mean_extra_steps": round(float(np.mean([r["steps"] - b for r, b in zip(rows, shortest)])), 3)}
+        bar.update()
+        result["external"] = {}
+        for row in evaluate.run_rainbow(evaluate.Args(policy="rainbow", checkpoint=model, quiet=quiet),
+                                        classical_cpp.external_episodes()):
+            result["external"].setdefault(row["map"], []).append(row["overlap"])
+        bar.update()
+    return result
+
+
+def marl_results(model: str, quiet: bool = False, every: int = MARL_EVERY, agents=MARL_AGENTS) -> dict:
+    """A rainbow_marl model on marl_eval (every `every`-th layout of sizes 10-30) with N = `agents` beside the
+    greedy planners with claims, and the faulty-agent experiment of §7.5.3.3 at N = FAULTY_AGENTS."""
+    result = {"every": every, "faulty_at": FAULTY_AT, "model": _model_json(model), "agents": {}, "faulty": {}}
+
+    def mean(rows, key):
+        return round(float(np.mean([r[key] for r in rows])), 4)
+
+    for n in tqdm(agents, desc="rainbow_marl", disable=quiet or not sys.stdout.isatty()):
+        scenarios, sizes = classical_cpp.marl_eval_subset(n, every)
+        episodes = [(f"marl_eval.npz[{z}x{z}]", s) for s, z in zip(scenarios, sizes)]
+        rows = evaluate.run_marl(evaluate.Args(policy="marl", checkpoint=model, agents=n, quiet=quiet), episodes)
+        greedy = evaluate.run_planner("greedy", episodes)
+        dead_ends = evaluate.run_planner("greedy-dead-ends", episodes)
+        result["agents"][str(n)] = {
+            "maps": len(rows), "time_save": mean(rows, "time_save"), "completion": mean(rows, "completed"),
+            "heuristic_share": round(float(np.mean([r["heuristic_steps"] / (n * r["steps"]) for r in rows])), 4),
+            "greedy": mean(greedy, "time_save"), "greedy_dead_ends": mean(dead_ends, "time_save"),
+            "by_size": {str(z): mean([r for r, k in zip(rows, sizes) if k == z], "time_save") for z in np.unique(sizes)}}
+        if n in FAULTY_AGENTS:
+            faulty = evaluate.run_marl(evaluate.Args(policy="marl", checkpoint=model, agents=n, faulty_agent_at=FAULTY_AT,
+                                                     quiet=quiet), episodes)
+            result["faulty"][str(n)] = {"time_save": mean(faulty, "time_save"), "completion": mean(faulty, "completed")}
+    return result
+
+
+def tabular_results(model: str, quiet: bool = False) -> dict:
+    """Fig. 5.5: a tabular_q table (greedy, heuristic on, lidar map) on ch5_eval, mean ρ per (size, requested
+    obstacles); beside it the untrained table (every state never seen: a random move toward an uncovered
+    neighbour, the heuristic at dead ends)."""
+    import tabular_q
+    path = os.path.join(ROOT, CH5_EVAL)
+    data, scenarios = np.load(path), gridworld.load_dataset(path)
+    trained = tabular_q.QTable.load(model)
+    result = {"model": {k: v for k, v in _model_json(model).items() if k != "curve_rho"}, "settings": []}
+    rho = {name: tabular_q.evaluate_table(t, scenarios, sensor="lidar", quiet=quiet)["rho"]  # each with its own bar
+           for name, t in (("trained", trained), ("untrained", tabular_q.QTable(trained.memory, trained.sensor_range)))}
+    for size, obstacles in sorted({(int(a), int(b)) for a, b in zip(data["size"], data["requested_obstacles"])}):
+        pick = (data["size"] == size) & (data["requested_obstacles"] == obstacles)
+        result["settings"].append(dict(size=size, obstacles=obstacles, maps=int(pick.sum()),
+                                       **{name: round(float(r[pick].mean()), 4) for name, r in rho.items()}))
+    return result
+
+
+def parts_to_collect(args: Collect) -> list[str]:
+    """The parts `args` asks for, after checking its flags: with --reuse only those whose JSON is missing under
+    --out, and never a learned part whose model is not trained."""
+    unknown = [p for p in args.parts if p not in PARTS]
+    if unknown:
+        raise ValueError(f"--parts: unknown part(s) {', '.join(unknown)}; choose from {', '.join(PARTS)}")
+    if args.per_size < 1:
+        raise ValueError(f"--per-size must be >= 1, got {args.per_size}")
+    if args.p2p_maps < 1:
+        raise ValueError(f"--p2p-maps must be >= 1, got {args.p2p_maps}")
+    todo = []
+    for part in dict.fromkeys(args.parts):
+        if args.reuse and os.path.exists(os.path.join(args.out, PARTS[part])):
+            continue
+        if part in MODELS and not os.path.exists(os.path.join(ROOT, MODELS[part])):
+            print(f"{part}: skipped, {MODELS[part]} is not trained yet")
+            continue
+        todo.append(part)
+    return todo
+
+
+def collect(args: Collect, staging: str) -> list[str]:
+    """Run the parts asked for and write their JSON, each with its provenance, under `staging`."""
+    written = []
+    for part in parts_to_collect(args):
+        started = time.time()
+        model = os.path.join(ROOT, MODELS.get(part, ""))
+        if part == "classical":
+            result = classical_cpp.compare(args.per_size, args.quiet)
+        elif part == "rainbow_cpp":
+            result = rainbow_results(args.per_size, args.p2p_maps, model, args.quiet)
+        elif part == "rainbow_marl":
+            result = marl_results(model, args.quiet, MARL_EVERY, MARL_AGENTS)
+        else:
+            result = tabular_results(model, args.quiet)
+        result["provenance"] = provenance(started, args)
+        written.append(classical_cpp.write_json(os.path.join(staging, PARTS[part]), result))
+        print(f"{part}: collected in {time.time() - started:.0f} s -> {os.path.join(args.out, PARTS[part])}", flush=True)
+    return written
+
+
+# ----------------------------------------------------------------------------- render (pure)
+def table(header: list[str], rows: list[list[str]]) -> str:
+    return "\n".join(["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+                     + ["| " + " | ".join(r) + " |" for r in rows])
+
+
+def recorded(value, fmt: str = "{}") -> str:
+    return "not recorded" if value is None or value == "" else fmt.format(value)
+
+
+def _commit(p: dict) -> str:
+    if not p.get("git_commit"):
+        return "not recorded"
+    return f"{p['git_commit'][:7]}" + (" (with uncommitted changes)" if p.get("git_dirty") else "")
+
+
+def _flags(flags) -> str:
+    if not flags:
+        return "not recorded"
+    out = []
+    for k, v in flags.items():
+        name = "--" + k.replace("_", "-")
+        if isinstance(v, bool):
+            out.append(name if v else "--no-" + k.replace("_", "-"))
+        else:
+            out.append(f"{name} {' '.join(map(str, v)) if isinstance(v, list) else v}")
+    return "`" + " ".join(out) + "`"
+
+
+def _sizes(keys) -> str:
+    """'a-b' of size keys such as '10' or '10x10'."""
+    sizes = sorted(int(str(k).split("x")[0]) for k in keys)
+    return f"{sizes[0]}-{sizes[-1]}"
+
+
+def _ordinal(n: int) -> str:
+    return f"{n}{'th' if 10 <= n % 100 <= 20 else {1: 'st', 2: 'nd', 3: 'rd'}.get(n % 10, 'th')}"
+
+
+def _provenance(m: dict) -> dict:
+    """A model JSON's provenance: under `provenance` (the rainbow trainers) or at the top level (tabular_q)."""
+    return m.get("provenance") or {k: m[k] for k in ("git_commit", "git_dirty", "cpu", "cores", "date") if k in m}
+
+
+def lineage(parent) -> str:
+    """The warm-start chain of a model from its JSON's `parent` (the trainer's record of the model it started
+    from, holding that model's own `parent`), nearest first."""
+    links = []
+    while isinstance(parent, dict):
+        facts = [f"sha256 {parent['sha256'][:12]}" if parent.get("sha256") else None,
+                 f"{parent['global_step']:,} steps" if isinstance(parent.get("global_step"), int) else None,
+                 f"last stage {parent['stage']}" if parent.get("stage") else None,
+                 f"git commit {_commit(_provenance(parent))}"]
+        links.append(f"`{recorded(parent.get('path'))}` ({', '.join(f for f in facts if f)})")
+        parent = parent.get("parent")
+    if parent:
+        links.append(str(parent))
+    return " ← ".join(links)
+
+
+def trained_on(m: dict, torch: bool = True) -> str:
+    """Where a model was trained, from its JSON: the trainer's provenance, else the older keys, else not recorded;
+    then its parent and the trainer's note on it."""
+    p = _provenance(m)
+    parts = [f"machine: {recorded(p.get('cpu') or m.get('machine'))}" + (f" ({p['cores']} cores)" if p.get("cores") else "")]
+    if torch:
+        parts.append(f"torch threads: {recorded(p.get('torch_threads', m.get('torch_threads')))}")
+    parts += [f"git commit: {_commit(p)}", f"date: {recorded(p.get('date'))}"]
+    line = "Trained on " + "; ".join(parts) + "."
+    if m.get("parent"):
+        line += f" Parent: {lineage(m['parent'])}."
+    if "init_from_note" in m:
+        line += f" Training: {m['init_from_note']}."
+    return line
+
+
+def _wall(m: dict) -> float | None:
+    return (m.get("provenance") or {}).get("wall_seconds", m.get("wall_seconds"))
+
+
+def provenance_lines(results: dict) -> list[str]:
+    rows = []
+    for part, rel in PARTS.items():
+        if results[part] is None:
+            continue
+        p = results[part].get("provenance") or {}
+        rows.append([f"`{rel}`", recorded(p.get("date")), _commit(p),
+                     recorded(p.get("cpu")), recorded(p.get("cores")), recorded(p.get("torch_threads")),
+                     recorded(p.get("wall_seconds"), "{:,.0f} s"), _flags(p.get("flags"))])
+    return ["Where each results file was collected (its `provenance`, recorded by `python report.py collect`); each "
+            "model's training is quoted from its own JSON in its section.", "",
+            table(["results", "collected", "git commit", "CPU", "cores", "torch threads", "wall time", "flags"], rows)]
+
+
+def classical_lines(c: dict) -> tuple[list[str], list[str]]:
+    """The planner comparison (Table 6.4) and the multi-agent baselines."""
+    cpp, ext, marl = c["cpp_eval"], c["external"], c["marl_eval"]
+    planners, maps = list(cpp), list(ext)
+    bands = [k for k in next(iter(cpp.values())) if "-" in k]
+    starts = sorted({len(v) for per in ext.values() for v in per.values()})
+    comparison = [
+        f"`cpp_eval`, the first {c['per_size']} maps of each size, mean overlap by size band; "
+        f"LKH ({c['lkh_time_limit_s']:.0f} s cap per map) is the near-optimal reference.", "",
+        table(["planner"] + bands + ["all", "plan ms/map"],
+              [[n] + [f"{cpp[n][b]:.3f}" for b in bands] + [f"{cpp[n]['all']:.3f}", f"{cpp[n]['plan_ms_per_map']:.1f}"]
+               for n in planners]), "",
+        f"![planners by size]({FIGURES['planners_by_size']})", "",
+        f"MovingAI maps (`maps/external`), mean overlap over the {'/'.join(map(str, starts))} reference starts:", "",
+        table(["map"] + planners, [[m] + [f"{np.mean(ext[m][n]):.3f}" for n in planners] for m in maps]), "",
+        f"![planners on external maps]({FIGURES['planners_external']})"]
+    where = (f"sizes {c['marl_sizes'][0]}-{c['marl_sizes'][1]}, every {_ordinal(c['marl_every'])} layout"
+             if "marl_sizes" in c and "marl_every" in c else "sizes and layouts not recorded")
+    agents = sorted(marl, key=int)
+    baselines = [
+        f"Baselines on `marl_eval` ({where}), mean time-save factor $t_{{sf}} = T / n_{{poi}}(s_0)$:", "",
+        table(["agents", "maps", "greedy (claims)", "partition", "lower bound"],
+              [[n, str(marl[n]["maps"]), f"{marl[n]['greedy']:.3f}", f"{marl[n]['partition']:.3f}",
+                f"{marl[n]['lower_bound_time_save']:.3f}"] for n in agents]), "",
+        f"![multi-agent baselines]({FIGURES['marl_baselines']})"]
+    return comparison, baselines
+
+
+def rainbow_lines(rb: dict, c: dict) -> tuple[list[str], list[str], list[str]]:
+    """The chapter-6 agent: full information (Figs. 6.13-6.16), camera (Figs. 6.17-6.22), point-to-point (Fig. 6.23)."""
+    sizes = sorted(rb["full"], key=int)
+    ext = c["external"]
+    m = rb["model"]
+    wall = _wall(m)
+    first, last = REFERENCE["rainbow_cpp_sizes"]
+    target = [z for z in sizes if first <= int(z) <= last]
+    goal = REFERENCE["rainbow_cpp_overlap"]
+    model = (f"Model `{MODELS['rainbow_cpp']}` (hidden {m['args']['hidden']}): {m['global_step']:,} environment "
+             f"steps, last stage {m['stage']}, {recorded(None if wall is None else wall / 3600, '{:.1f} h')} of "
+             f"training; flags in `{os.path.splitext(MODELS['rainbow_cpp'])[0]}.json`. {trained_on(m)} "
+             "Regenerate these numbers with `python report.py`.")
+    full = [model, ""]
+    if target:
+        below = sum(rb["full"][z]["overlap"] < rb["greedy"][z]["overlap"] for z in target)
+        worst = max(target, key=lambda z: rb["full"][z]["overlap"])
+        full += [f"Targets on sizes {first}-{last} (`report.REFERENCE`: "
+                 f"{100 * REFERENCE['rainbow_cpp_completion']:.0f}% completion, mean overlap ≤ {goal} and below "
+                 f"the greedy planner at every size): completion "
+                 f"{100 * min(rb['full'][z]['completion'] for z in target):.0f}% at worst; mean overlap ≤ {goal} at "
+                 f"{sum(rb['full'][z]['overlap'] <= goal for z in target)} of {len(target)} sizes (worst "
+                 f"{rb['full'][worst]['overlap']:.3f} at {worst}); below greedy at {below} of {len(target)}.", ""]
+    starts = sorted({len(v) for v in rb["external"].values()})
+    full += [
+        f"`cpp_eval`, the first {rb['per_size']} maps of each size, mean overlap and "
+        "completion; heuristic share = fraction of steps the fallback took.", "",
+        table(["size", "rainbow + heuristic", "completed", "heuristic share", "rainbow alone (completed maps)",
+               "completed", "greedy planner", "greedy-dead-ends planner"],
+              [[z, f"{rb['full'][z]['overlap']:.3f}", f"{100 * rb['full'][z]['completion']:.0f}%",
+                f"{rb['full'][z]['heuristic_share']:.2f}", f"{rb['full_no_heuristic'][z]['overlap_completed']:.3f}",
+                f"{100 * rb['full_no_heuristic'][z]['completion']:.0f}%", f"{rb['greedy'][z]['overlap']:.3f}",
+                f"{rb['greedy_dead_ends'][z]['overlap']:.3f}"]
+               for z in sizes]), "",
+        f"![rainbow overlap by size]({FIGURES['rainbow_cpp']})", "",
+        f"MovingAI maps, mean overlap over the {'/'.join(map(str, starts))} reference starts:", "",
+        table(["map", "rainbow + heuristic", "greedy", "lkh"],
+              [[name, f"{np.mean(v):.3f}", f"{np.mean(ext[name]['greedy']):.3f}", f"{np.mean(ext[name]['lkh']):.3f}"]
+               for name, v in rb["external"].items()])]
+    r = rb.get("camera_range", CAMERA_RANGE)
+    camera = rb[f"camera_r{r}"]
+    sensor = [f"Camera, range r = {r}, the same model with the heuristic fallback, `cpp_eval` as above:", "",
+              table(["size", "overlap", "completed"],
+                    [[z, f"{camera[z]['overlap']:.3f}", f"{100 * camera[z]['completion']:.0f}%"] for z in sizes])]
+    p = rb["p2p"]
+    p2p = [f"The first {p['maps']:,} scenarios of `p2p_eval` (one point of interest), heuristic fallback on: "
+           f"{100 * p['optimal']:.1f}% on a shortest path, {100 * p['completion']:.1f}% reached, "
+           f"{p['mean_extra_steps']:.2f} steps beyond the shortest path on average."]
+    return full, sensor, p2p
+
+
+def marl_lines(mr: dict, rewards: dict) -> list[str]:
+    """The chapter-7 agent (Figs. 7.11-7.12) and the reward structures of §7.5.2."""
+    agents = sorted(mr["agents"], key=int)
+    m = mr["model"]
+    wall = _wall(m)
+    sizes = _sizes(mr["agents"][agents[0]]["by_size"])
+    met = [f"N = {n}: {mr['agents'][n]['time_save']:.3f} against ≤ {t} "
+           f"({'met' if mr['agents'][n]['time_save'] <= t else 'not met'})"
+           for n, t in REFERENCE["rainbow_marl_time_save"].items() if n in mr["agents"]]
+    several = [n for n in agents if int(n) > 1]
+    below = [n for n in several if mr["agents"][n]["time_save"] < mr["agents"][n]["greedy"]]
+    lines = [
+        f"Model `{MODELS['rainbow_marl']}` (hidden {m['args']['hidden']}"
+        + (f", from `{m['args']['init_from']}`" if m["args"].get("init_from") else "") + "): "
+        f"{m['global_step']:,} environment steps, last stage {m['stage']}, "
+        f"{recorded(None if wall is None else wall / 60, '{:.0f} min')} of training; flags in "
+        f"`{os.path.splitext(MODELS['rainbow_marl'])[0]}.json`. Decentralised execution, noise off, heuristic "
+        f"fallback on. {trained_on(m)}", ""]
+    if met:
+        lines += [f"Targets (`report.REFERENCE`, mean $t_{{sf}}$ on sizes {sizes}): {'; '.join(met)}. Completion "
+                  f"{100 * min(mr['agents'][n]['completion'] for n in agents):.0f}% at worst."
+                  + (f" Below the greedy planner at {len(below)} of the {len(several)} agent counts "
+                     f"{several[0]}-{several[-1]}." if several else ""), ""]
+    lines += [
+        f"`marl_eval` sizes {sizes}, every {_ordinal(mr['every'])} layout, the first N stored starts (the N + 1-agent "
+        "episode adds one agent to the N-agent one); heuristic share = fraction of agent-steps the fallback took:", "",
+        table(["N", "maps", "rainbow_marl", "greedy (claims)", "greedy-dead-ends (claims)", "1/N", "completed",
+               "heuristic share"],
+              [[n, str(mr["agents"][n]["maps"]), f"{mr['agents'][n]['time_save']:.3f}",
+                f"{mr['agents'][n]['greedy']:.3f}", f"{mr['agents'][n]['greedy_dead_ends']:.3f}", f"{1 / int(n):.3f}",
+                f"{100 * mr['agents'][n]['completion']:.0f}%", f"{mr['agents'][n]['heuristic_share']:.2f}"]
+               for n in agents]), "",
+        f"![rainbow_marl time-save factor]({FIGURES['rainbow_marl']})"]
+    if mr["faulty"]:
+        lines += [
+            "", f"Faulty agent (§7.5.3.3, Fig. 7.12): the last agent freezes once "
+            f"{100 * mr.get('faulty_at', FAULTY_AT):.0f}% of the points of interest are covered; "
+            "mean $t_{sf}$ beside N and N - 1 working agents on the same maps:", "",
+            table(["N", "N working", "N, one faulty", "completed (faulty)", "N - 1 working"],
+                  [[n, f"{mr['agents'][n]['time_save']:.3f}", f"{f['time_save']:.3f}", f"{100 * f['completion']:.0f}%",
+                    f"{mr['agents'][str(int(n) - 1)]['time_save']:.3f}" if str(int(n) - 1) in mr["agents"] else "—"]
+                   for n, f in mr["faulty"].items()])]
+    if rewards:
+        first = next(iter(rewards.values()))
+        lines += [
+            "", f"Reward structures (§7.5.2, Figs. 7.7-7.8): `marl_rewards/*/summary.json`, written by `evaluate.py` "
+            f"(README for the training and evaluation commands); N = {first['agents']}, `{first['dataset']}` sizes "
+            f"{_sizes(first['by_size'])}, mean $t_{{sf}}$:", "",
+            table(["reward", "policy", "maps", "mean t_sf", "completed"],
+                  [[name, s["policy"], str(s["all"]["episodes"]), f"{s['all']['time_save']['mean']:.3f}",
+                    f"{100 * s['all']['completion_rate']:.0f}%"] for name, s in rewards.items()])]
+    return lines
+
+
+def _fig5_4_runs(runs: dict) -> tuple[dict, list[str]]:
+    """The Fig. 5.4 training runs keyed by (algorithm, obstacles, heuristic), and the algorithms with both
+    obstacle settings trained with the heuristic."""
+    keyed = {(r["args"]["algorithm"], r["args"]["number_obstacles"], r["args"]["heuristic"]): r for r in runs.values()}
+    return keyed, [a for a in REFERENCE["table_5_1_seconds"] if (a, 0, True) in keyed and (a, 1, True) in keyed]
+
+
+def _last(run: dict) -> tuple[float, int]:
+    """Mean ρ of the last 10% of training, and how many episodes that is."""
+    c = run["curve_rho"]
+    k = max(1, len(c) // 10)
+    return float(np.mean(c[-k:])), k * run["curve_window"]
+
+
+def _same(values) -> str:
+    return "/".join(str(v) for v in dict.fromkeys(values))
+
+
+def tabular_lines(fig55: dict | None, runs: dict) -> list[str]:
+    """Chapter 5: the training runs of Fig. 5.4 and Table 5.1, and the committed table on ch5_eval (Fig. 5.5)."""
+    keyed, algorithms = _fig5_4_runs(runs)
+    machines = [r.get("machine") or (r.get("provenance") or {}).get("cpu") for r in runs.values()]
+    if fig55 is not None:
+        machines.append(fig55["model"].get("machine") or (fig55["model"].get("provenance") or {}).get("cpu"))
+    n = 6
+    lines = [f"Every number here comes from `tabular_q.py` runs (machine: {recorded(_same(machines) or None)}); "
+             "ρ = steps / free cells as gridworld counts it, so a perfect sweep of an obstacle-free N×N map is "
+             f"(N² − 1)/N² ({(n * n - 1) / (n * n):.3f} on {n}×{n}), not the {REFERENCE['rho_perfect']} of §5.4.1.", ""]
+    if algorithms:
+        chosen = [keyed[(a, o, True)] for a in algorithms for o in (0, 1)]
+        episodes = _same(f"{r['episodes']:,}" for r in chosen)
+        size = _same(r["args"]["size"] for r in chosen)
+        starts = _same("corner" if r["args"]["corner_starts"] else "random" for r in chosen)
+        window = _same(f"{r['curve_window']:,}" for r in chosen)
+        last = {(a, o): _last(keyed[(a, o, True)]) for a in algorithms for o in (0, 1)}
+        tail = _same(f"{k // 1000:,}k" if k % 1000 == 0 else f"{k:,}" for _, k in last.values())
+        lines += [
+            f"**Fig. 5.4** — {episodes} training episodes on {size}×{size} with {starts} starts, heuristic on, "
+            f"mean ρ per {window} episodes (`results/tabular/fig5_4/*.json`; commands in the README):", "",
+            f"![Fig. 5.4]({FIGURES['fig5_4']})", "",
+            table(["algorithm", f"ρ, last {tail} episodes, 0 obstacles", f"ρ, last {tail} episodes, 1 obstacle"],
+                  [[a, f"{last[(a, 0)][0]:.4f}", f"{last[(a, 1)][0]:.4f}"] for a in algorithms]), "",
+            f"**Table 5.1** — training time (s) of those {episodes} episodes, ours ("
+            f"{recorded(_same(r.get('machine') for r in chosen) or None)}, "
+            f"{_same(r['args']['num_worlds'] for r in chosen)} worlds stepped together) / the dissertation's "
+            f"({REFERENCE['table_5_1_machine']}):", "",
+            table(["method", "heuristic, no obstacles", "heuristic, one obstacle", "no heuristic, no obstacles",
+                   "no heuristic, one obstacle"],
+                  [[a] + [f"{keyed[(a, o, h)]['wall_seconds']:.0f} / {REFERENCE['table_5_1_seconds'][a][k]}"
+                          if (a, o, h) in keyed else f"– / {REFERENCE['table_5_1_seconds'][a][k]}"
+                          for k, (h, o) in enumerate(((True, 0), (True, 1), (False, 0), (False, 1)))]
+                   for a in algorithms]), ""]
+    if fig55 is None:
+        return lines + [NOT_COLLECTED.format(file=PARTS["tabular"], part="tabular", model=MODELS["tabular"],
+                                             script=SCRIPTS["tabular"])]
+    m, settings = fig55["model"], fig55["settings"]
+    a = m["args"]
+    sizes = sorted({s["size"] for s in settings})
+    obstacle_counts = sorted({s["obstacles"] for s in settings})
+    cell = {(s["size"], s["obstacles"]): s for s in settings}
+    wall = _wall(m)
+    obstacles = f"0-{a['number_obstacles']}" if a.get("obstacles_random") else str(a["number_obstacles"])
+    return lines + [
+        f"**Fig. 5.5** — the committed table `{MODELS['tabular']}` ({a['algorithm']}, sizes "
+        f"{a['min_size'] if a.get('min_size') is not None else a['size']}-{a['size']}, {obstacles} obstacles, "
+        f"{'corner' if a.get('corner_starts') else 'random'} starts): {m['episodes']:,} training episodes in "
+        f"{recorded(None if wall is None else wall / 60, '{:.0f} min')} ({m['episodes_per_second']:,.0f} episodes/s, "
+        f"{m['states']:,} states) against the dissertation's {REFERENCE['fig_5_5_episodes'] / 1e6:g} M. "
+        f"{trained_on(m, torch=False)} Greedy on `{CH5_EVAL}`, {_same(s['maps'] for s in settings)} maps per "
+        f"setting (the dissertation used {REFERENCE['fig_5_5_maps']:,}), mean ρ; in brackets the untrained table (a "
+        "random move toward an uncovered neighbour, the heuristic at dead ends):", "",
+        table(["size \\ obstacles"] + [str(o) for o in obstacle_counts],
+              [[str(z)] + [f"{cell[(z, o)]['trained']:.3f} ({cell[(z, o)]['untrained']:.3f})" for o in obstacle_counts]
+               for z in sizes]), "",
+        f"![Fig. 5.5]({FIGURES['fig5_5']})"]
+
+
+def headline(results: dict) -> list[str]:
+    """The README's results table: mean overlap of the shipped agent beside the planners on the same maps (cpp_eval's
+    subset of the planner report, the MovingAI maps from their reference starts), and the team's time-save factor."""
+    c, rb, mr = results["classical"], results["rainbow_cpp"], results["rainbow_marl"]
+    ext = c["external"]
+
+    def external(planner):
+        return float(np.mean([np.mean(by[planner]) for by in ext.values()]))
+
+    def cpp(key):
+        return float(np.mean([v["overlap"] for v in rb[key].values()]))
+
+    rows = []
+    if rb is not None:
+        rows.append(["rainbow_cpp (shipped, + heuristic fallback)", f"{cpp('full'):.3f}",
+                     f"{float(np.mean([np.mean(v) for v in rb['external'].values()])):.3f}"])
+        rows.append(["greedy-dead-ends (its teacher)", f"{cpp('greedy_dead_ends'):.3f}", "—"])
+    rows += [[name, f"{c['cpp_eval'][name]['all']:.3f}", f"{external(name):.3f}"]
+             for name in ("greedy", "wavefront", "boustrophedon", "spiral-stc", "lkh")]
+    lines = [table(["mean overlap $O_v$ (lower is better)", f"cpp_eval ({c['per_size']} maps a size, 5-30)",
+                    f"MovingAI ({len(ext)} maps, 3 starts each)"], rows)]
+    if mr is not None:
+        team = [n for n in ("2", "5", "10") if n in mr["agents"]]
+        lines += ["", table(["mean time-save $t_{sf}$, marl_eval sizes 10-30", *[f"N = {n}" for n in team]], [
+            ["rainbow_marl (shipped)", *[f"{mr['agents'][n]['time_save']:.3f}" for n in team]],
+            ["greedy with claims", *[f"{mr['agents'][n]['greedy']:.3f}" for n in team]],
+            ["greedy-dead-ends with claims (its teacher)", *[f"{mr['agents'][n]['greedy_dead_ends']:.3f}" for n in team]],
+        ])]
+    return lines
+
+
+def render(results: dict) -> str:
+    """RESULTS.md from `load_results`: a pure function of the JSON, the same files always give the same text."""
+    paths = results["paths"]
+
+    def missing(part):
+        return [NOT_COLLECTED.format(file=PARTS[part], part=part, model=MODELS[part], script=SCRIPTS[part])]
+
+    with reading(paths["classical"]):
+        comparison, baselines = classical_lines(results["classical"])
+    full_info = sensor_based = point_to_point = missing("rainbow_cpp")
+    if results["rainbow_cpp"] is not None:
+        with reading(paths["rainbow_cpp"]):
+            full_info, sensor_based, point_to_point = rainbow_lines(results["rainbow_cpp"], results["classical"])
+    multi_agent = missing("rainbow_marl")
+    if results["rainbow_marl"] is not None:
+        with reading(paths["rainbow_marl"]):
+            multi_agent = marl_lines(results["rainbow_marl"], results["marl_rewards"])
+    with reading(paths["tabular"] or paths["fig5_4"] or "the tabular results"):
+        tabular = tabular_lines(results["tabular"], results["fig5_4"])
+    return "\n".join([
+        "# Results", "",
+        "Regenerated by `python report.py` (`python report.py render` rewrites this file from the JSON beside it "
+        "without re-running anything; `python report.py all --reuse` collects only the missing JSON). Every "
+        "number is counted by gridworld's environment replaying the planned paths (`classical_cpp.replay`).", "",
+        "## Headline", "", *headline(results), "",
+        "## Provenance", "", *provenance_lines(results), "",
+        "## Single agent, full information (Figs. 6.13-6.16)", "", *full_info, "",
+        "## Comparison with classical planners (Table 6.4)", "", *comparison, "",
+        "## Sensor-based coverage (Figs. 6.17-6.22)", "", *sensor_based, "",
+        "## Point-to-point (Fig. 6.23)", "", *point_to_point, "",
+        "## Multi-agent (Figs. 7.11-7.12)", "", *baselines, "", *multi_agent, "",
+        "## Tabular agent (Fig. 5.4, Table 5.1, Fig. 5.5)", "", *tabular, "",
+    ])
+
+
+# ----------------------------------------------------------------------------- plot
+def _save(fig, folder: str, key: str) -> str:
+    import matplotlib.pyplot as plt
+    path = os.path.join(folder, FIGURES[key])
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def plot_classical(c: dict, folder: str) -> list[str]:
+    import matplotlib.pyplot as plt
+    cpp, ext, marl = c["cpp_eval"], c["external"], c["marl_eval"]
+    planners, maps = list(cpp), list(ext)
+    bands = [k for k in next(iter(cpp.values())) if "-" in k]
+    fig, ax = plt.subplots(figsize=(7, 4))
+    for name in planners:
+        ax.plot(bands, [cpp[name][b] for b in bands], marker="o", label=name)
+    ax.set(xlabel="map size (edge, cells)", ylabel="mean overlap $O_v$",
+           title=f"Planners on cpp_eval ({c['per_size']} maps per size)")
+    ax.grid(alpha=0.3)
+    ax.legend()
+    written = [_save(fig, folder, "planners_by_size")]
+
+    fig, ax = plt.subplots(figsize=(9, 4))
+    width = 0.8 / len(planners)
+    for k, name in enumerate(planners):
+        ax.bar(np.arange(len(maps)) + k * width, [np.mean(ext[m][name]) for m in maps], width, label=name)
+    ax.set_xticks(np.arange(len(maps)) + 0.4 - width / 2, [m.replace(".map", "") for m in maps], rotation=30, ha="right")
+    ax.set(ylabel="mean overlap $O_v$ (per reference start)", title="Planners on the MovingAI maps")
+    ax.legend(fontsize=8)
+    written.append(_save(fig, folder, "planners_external"))
+
+    agents = sorted(int(n) for n in marl)
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for name in ("greedy", "partition"):
+        ax.plot(agents, [marl[str(n)][name] for n in agents], marker="o", label=name)
+    ax.plot(agents, [marl[str(n)]["lower_bound_time_save"] for n in agents], "k--", label="lower bound ≈ 1/N")
+    where = f" (sizes {c['marl_sizes'][0]}-{c['marl_sizes'][1]})" if "marl_sizes" in c else ""
+    ax.set(xlabel="agents N", ylabel="mean time-save factor $t_{sf}$", title=f"Multi-agent baselines on marl_eval{where}")
+    ax.grid(alpha=0.3)
+    ax.legend()
+    written.append(_save(fig, folder, "marl_baselines"))
+    return written
+
+
+def plot_rainbow(rb: dict, c: dict, folder: str) -> list[str]:
+    import matplotlib.pyplot as plt
+    sizes = sorted(rb["full"], key=int)
+    r = rb.get("camera_range", CAMERA_RANGE)
+    teacher = rb["model"]["args"].get("heuristic_dead_ends")  # the heuristic the model imitated
+    fig, ax = plt.subplots(figsize=(9.5, 4))
+    for key, stat, label in (("full", "overlap", "rainbow + heuristic fallback"),
+                             ("full_no_heuristic", "overlap_completed", "rainbow alone (completed maps)"),
+                             (f"camera_r{r}", "overlap", f"rainbow, camera r = {r}"),
+                             ("greedy", "overlap", "greedy planner" + (" (the teacher)" if teacher is False else "")),
+                             ("greedy_dead_ends", "overlap", "greedy-dead-ends planner" + (" (the teacher)" if teacher else ""))):
+        ax.plot([int(z) for z in sizes], [rb[key][z][stat] for z in sizes], marker=".", label=label)
+    lkh = c["cpp_eval"]["lkh"]
+    bands = [b for b in lkh if "-" in b]
+    ax.plot([np.mean([int(x) for x in b.split("-")]) for b in bands], [lkh[b] for b in bands], "k*",
+            label="LKH (size-band means)")
+    ax.axhline(REFERENCE["rainbow_cpp_overlap"], color="grey", ls=":", label=f"target {REFERENCE['rainbow_cpp_overlap']}")
+    ax.set(xlabel="map size (edge, cells)", ylabel="mean overlap $O_v$", yscale="log",
+           title=f"rainbow_cpp on cpp_eval ({rb['per_size']} maps per size)")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1))  # outside: the curves fill the plot
+    return [_save(fig, folder, "rainbow_cpp")]
+
+
+def plot_marl(mr: dict, c: dict, folder: str) -> list[str]:
+    import matplotlib.pyplot as plt
+    agents = sorted(mr["agents"], key=int)
+    n_axis = [int(n) for n in agents]
+    marl = c["marl_eval"]
+    fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4))
+    left.plot(n_axis, [mr["agents"][n]["time_save"] for n in agents], marker="o", label="rainbow_marl + heuristic")
+    left.plot(n_axis, [mr["agents"][n]["greedy"] for n in agents], marker=".", label="greedy planner (claims)")
+    left.plot(n_axis, [mr["agents"][n]["greedy_dead_ends"] for n in agents], marker=".",
+              label="greedy-dead-ends planner (claims)")
+    base = sorted(marl, key=int)
+    left.plot([int(n) for n in base], [marl[n]["partition"] for n in base], "s", label="partition planner")
+    left.plot(n_axis, [1 / n for n in n_axis], "k--", label="1/N")
+    left.set(xlabel="agents N", ylabel="mean time-save factor $t_{sf}$", yscale="log",
+             title=f"marl_eval, sizes {_sizes(mr['agents'][agents[0]]['by_size'])}")
+    for n in [n for n in ("2", "5", "10", "15") if n in mr["agents"]]:
+        by = mr["agents"][n]["by_size"]
+        right.plot([int(z) for z in by], list(by.values()), marker=".", label=f"N = {n}")
+    right.set(xlabel="map size (edge, cells)", ylabel="mean $t_{sf}$", yscale="log", title="rainbow_marl by size")
+    for ax in (left, right):
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    return [_save(fig, folder, "rainbow_marl")]
+
+
+def plot_tabular(fig55: dict | None, runs: dict, folder: str) -> list[str]:
+    import matplotlib.pyplot as plt
+    keyed, algorithms = _fig5_4_runs(runs)
+    written = []
+    if algorithms:
+        fig, axes = plt.subplots(1, 2, figsize=(10, 4), sharey=True)
+        for ax, obstacles in zip(axes, (0, 1)):
+            for a in algorithms:
+                run = keyed[(a, obstacles, True)]
+                x = (np.arange(len(run["curve_rho"])) + 1) * run["curve_window"]
+                ax.plot(x, run["curve_rho"], label=a)
+            args = keyed[(algorithms[0], obstacles, True)]["args"]
+            ax.set(xlabel="training episode", title=f"{args['size']}x{args['size']}, "
+                   f"{'corner' if args['corner_starts'] else 'random'} starts, {obstacles} obstacle(s)")
+            ax.grid(alpha=0.3)
+        axes[0].set_ylabel(f"mean ρ per {keyed[(algorithms[0], 0, True)]['curve_window']:,} episodes")
+        axes[0].legend()
+        written.append(_save(fig, folder, "fig5_4"))
+    if fig55 is not None:
+        settings, a = fig55["settings"], fig55["model"]["args"]
+        fig, ax = plt.subplots(figsize=(7, 4))
+        for obstacles in sorted({s["obstacles"] for s in settings}):
+            row = [s for s in settings if s["obstacles"] == obstacles]
+            ax.plot([s["size"] for s in row], [s["trained"] for s in row], marker="o", label=f"{obstacles} obstacles")
+        ax.set(xlabel=f"map size N (trained on {a['min_size'] if a.get('min_size') is not None else a['size']}-{a['size']})",
+               ylabel="mean ρ", title=f"{a['algorithm']} table on ch5_eval")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+        written.append(_save(fig, folder, "fig5_5"))
+    return written
+
+
+def plot(results: dict, folder: str) -> list[str]:
+    """Every figure the results allow, written into `folder`; the paths written."""
+    import matplotlib
+    matplotlib.use("Agg")
+    paths = results["paths"]
+    with reading(paths["classical"]):
+        written = plot_classical(results["classical"], folder)
+    if results["rainbow_cpp"] is not None:
+        with reading(paths["rainbow_cpp"]):
+            written += plot_rainbow(results["rainbow_cpp"], results["classical"], folder)
+    if results["rainbow_marl"] is not None:
+        with reading(paths["rainbow_marl"]):
+            written += plot_marl(results["rainbow_marl"], results["classical"], folder)
+    with reading(paths["tabular"] or paths["fig5_4"] or "the tabular results"):
+        written += plot_tabular(results["tabular"], results["fig5_4"], folder)
+    return written
+
+
+# ----------------------------------------------------------------------------- command line
+@dataclass
+class Collect:
+    """Run the experiments and write their JSON under --out (every part: ~25 min of planners, then the agents)."""
+    out: str = RESULTS
+    """folder for the results JSON"""
+    parts: tuple[str, ...] = tuple(PARTS)
+    """results to collect: classical (the planners), rainbow_cpp, rainbow_marl, tabular"""
+    reuse: bool = False
+    """collect only the parts whose JSON is missing under --out"""
+    per_size: int = 20
+    """maps per cpp_eval size for the planner comparison (LKH takes seconds per map) and rainbow_cpp"""
+    p2p_maps: int = 1000
+    """p2p_eval scenarios for the point-to-point evaluation (of 10,000)"""
+    quiet: bool = False
+    """no progress bars"""
+
+
+@dataclass
+class All(Collect):
+    """Collect (every part, or with --reuse the missing ones), then render RESULTS.md and plot the figures."""
+
+
+@dataclass
+class Render:
+    """RESULTS.md from the JSON under --out; nothing is re-run."""
+    out: str = RESULTS
+    """folder of the results JSON; RESULTS.md is written there"""
+
+
+@dataclass
+class Plot:
+    """The PNG figures from the JSON under --out; nothing is re-run."""
+    out: str = RESULTS
+    """folder of the results JSON; the figures are written there"""
+
+
+Command = (Annotated[All, tyro.conf.subcommand("all", default=All())]
+           | Annotated[Collect, tyro.conf.subcommand("collect", default=Collect())]
+           | Annotated[Render, tyro.conf.subcommand("render", default=Render())]
+           | Annotated[Plot, tyro.conf.subcommand("plot", default=Plot())])
+
+
+CLI_CONFIG = (tyro.conf.CascadeSubcommandArgs,)  # the default subcommand's flags select it: no subcommand name needed
+
+
+def cli(args: list[str] | None = None) -> Collect | Render | Plot:
+    """`python report.py [all|collect|render|plot] ...`; no subcommand is `all`."""
+    return tyro.cli(Command, default=All(), args=args, description=__doc__, config=CLI_CONFIG)
+
+
+def beside(default, name: str, description: str):
+    """The CLI type of a script whose own dataclass (`default`, an instance giving its defaults) is the default
+    subcommand `name`, with this report as the subcommand `report`; parse it with
+    tyro.cli(..., default=default, config=CLI_CONFIG) so that the script's flags need no subcommand name."""
+    own = tyro.conf.subcommand(name, default=default, description=f"{description} (the default: no subcommand needed)")
+    report = tyro.conf.subcommand("report", default=All(), description=__doc__.split("\n\n")[0])
+    return Annotated[type(default), own] | Annotated[Command, report]
+
+
+def main(command: Collect | Render | Plot) -> list[str]:
+    """Run a report command; every file is written under a staging folder and moved under --out at the end."""
+    with staged(command.out) as tmp:
+        if isinstance(command, Collect):
+            collect(command, tmp)
+        if isinstance(command, (All, Render)):
+            with open(os.path.join(tmp, "RESULTS.md"), "w") as f:
+                f.write(render(load_results(tmp, command.out)))
+        if isinstance(command, (All, Plot)):
+            plot(load_results(tmp, command.out), tmp)
+        written = sorted(os.path.relpath(os.path.join(d, n), tmp) for d, _, files in os.walk(tmp) for n in files)
+    print(f"wrote {', '.join(written) or 'nothing'} into {command.out}")
+    return written
+
+
+if __name__ == "__main__":
+    try:
+        main(cli())
+    except ValueError as e:
+        raise SystemExit(f"error: {e}") from None

@@ -1,0 +1,293 @@
+"""Bad input to the command lines (gridworld.py, tabular_q.py, maps/make_datasets.py) and to the
+loaders users call directly (load_map, load_dataset, load_config, QTable.load, EnvConfig).
+
+Rules: a loader raises ValueError itself (never a subclass such as UnicodeDecodeError, nor
+BadZipFile, KeyError, pickle or YAML errors), on one line naming the file; a command line exits
+non-zero with one `error: ...` line on stderr, no traceback, and writes nothing.
+"""
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import gridworld as gw
+import tabular_q as tq
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def one_line_value_error(call, *args, match: str, **kwargs) -> str:
+    """The message of the ValueError (exactly that type) `call` raises; it is one line matching `match`."""
+    with pytest.raises(Exception) as info:
+        call(*args, **kwargs)
+    assert type(info.value) is ValueError, f"{type(info.value).__name__}: {info.value}"
+    message = str(info.value)
+    assert "\n" not in message and re.search(match, message), message
+    return message
+
+
+def cli_error(cwd: Path, script: str, *flags: str, match: str) -> str:
+    """Run a script of the repo with flags in cwd: it must fail with a single `error:` line."""
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONDONTWRITEBYTECODE": "1"}
+    done = subprocess.run([sys.executable, str(ROOT / script), *flags], cwd=cwd, env=env, capture_output=True,
+                          text=True, timeout=60)
+    lines = done.stderr.strip().splitlines()
+    assert done.returncode != 0 and len(lines) == 1 and lines[0].startswith("error: "), done.stderr
+    assert re.search(match, lines[0]), lines[0]
+    return lines[0]
+
+
+def listing(folder: Path) -> list[str]:
+    return sorted(str(p.relative_to(folder)) for p in folder.rglob("*"))
+
+
+# ----------------------------------------------------------------------------- bad files
+@pytest.fixture
+def files(tmp_path) -> dict[str, Path]:
+    """Malformed inputs, by what is wrong with them, plus a good table and a good dataset."""
+    good = [gw.Scenario(np.zeros((3, 4), bool), np.array([[0, 0]])), gw.Scenario(np.zeros((5, 5), bool), np.array([[4, 4]]))]
+    gw.save_dataset(str(tmp_path / "dataset.npz"), good)
+    table = tq.QTable(3, 3)
+    table.rows(np.array([11, 22]))
+    table.save(str(tmp_path / "table.npz"))
+    with np.load(tmp_path / "dataset.npz") as d:
+        arrays = dict(d)
+    raw = (tmp_path / "table.npz").read_bytes()
+    f = {name: tmp_path / name for name in ("empty", "binary", "text.npz", "half.npz", "array.npz", "flat.npz",
+                                             "floats.npz", "no_starts.npz", "none.npz", "objects.npz", "sizes.npz",
+                                             "string_q.npz", "two_tables.npz", "negative.npz", "zero_k.npz")}
+    f["empty"].write_bytes(b"")
+    f["binary"].write_bytes(bytes(range(128, 256)) * 4)
+    f["text.npz"].write_text("obstacles, sizes, starts\n")
+    f["half.npz"].write_bytes(raw[:len(raw) // 2])  # truncated
+    np.save(tmp_path / "array.npy", np.zeros(3))
+    os.replace(tmp_path / "array.npy", f["array.npz"])  # one .npy array under an .npz name
+    np.savez(f["flat.npz"], **{**arrays, "obstacles": arrays["obstacles"][0]})  # (H, W), not (M, H, W)
+    np.savez(f["floats.npz"], **{**arrays, "obstacles": arrays["obstacles"].astype(float)})
+    np.savez(f["no_starts.npz"], **{k: v for k, v in arrays.items() if k != "starts"})
+    np.savez(f["none.npz"], obstacles=np.zeros((0, 3, 3), bool), sizes=np.zeros((0, 2), int), starts=np.zeros((0, 1, 2), int))
+    np.savez(f["objects.npz"], **{**arrays, "starts": np.array([None, 1], dtype=object)})  # would need pickle
+    np.savez(f["sizes.npz"], **{**arrays, "sizes": arrays["sizes"] + 10})  # larger than the arrays
+    with np.load(tmp_path / "table.npz") as t:
+        parts = dict(t)
+    np.savez(f["string_q.npz"], **{**parts, "q": parts["q"].astype(str)})
+    np.savez(f["two_tables.npz"], **{**parts, "q": np.repeat(parts["q"], 2, 0), "updates": np.repeat(parts["updates"], 2, 0)})
+    np.savez(f["negative.npz"], **{**parts, "visits": -parts["visits"].astype(np.int64) - 1})
+    np.savez(f["zero_k.npz"], **{**parts, "memory": 0})
+    f["table.npz"], f["dataset.npz"] = tmp_path / "table.npz", tmp_path / "dataset.npz"
+    return f
+
+
+@pytest.mark.parametrize("name,problem", [
+    ("empty", "no map rows"), ("binary", "not a text map file"), ("text.npz", "unknown character 'o' at line 1, column 1"),
+    ("missing.map", "cannot read map"), ("dataset.npz", "not a text map file"), (".", "cannot read map"),
+])
+def test_load_map_bad_files(files, tmp_path, name, problem):
+    path = files.get(name, tmp_path / name)
+    one_line_value_error(gw.load_map, str(path), match="^" + re.escape(str(path)) + ": " + problem)
+    one_line_value_error(gw.load_map, path, match=problem)  # a pathlib.Path as well
+
+
+@pytest.mark.parametrize("text,problem", [
+    ("type octile\nheight 3\nwidth 3\nmap\n...\n...\n", "header says 3x3 but the rows do not match"),  # truncated
+    ("type octile\nheight three\nwidth 3\nmap\n...\n", "bad MovingAI header \\(height/width not integers"),
+    ("height 3\nwidth 3\nmap\n...\n", "bad MovingAI header"),
+    ("type octile\nheight 1\nwidth 3\nmap\n@@@\n", "no free cell"),
+])
+def test_load_map_bad_movingai_files(tmp_path, text, problem):
+    path = tmp_path / "bad.map"
+    path.write_text(text)
+    one_line_value_error(gw.load_map, str(path), match=re.escape(str(path)) + ": " + problem)
+
+
+@pytest.mark.parametrize("name,problem", [
+    ("empty", "not an .npz archive"), ("binary", "not an .npz archive"), ("text.npz", "not an .npz archive"),
+    ("half.npz", "not an .npz archive"), ("array.npz", "not an .npz archive"), ("missing.npz", "no such file"),
+    (".", "not a file"), ("table.npz", "no 'obstacles' array"), ("no_starts.npz", "no 'starts' array"),
+    ("flat.npz", "arrays of inconsistent shapes"), ("floats.npz", "obstacles must be boolean, got float64"),
+    ("none.npz", "no scenarios"), ("objects.npz", "Object arrays cannot be loaded when allow_pickle=False"),
+    ("sizes.npz", "sizes must lie in 1..5 x 1..5"),
+])
+def test_load_dataset_bad_files(files, tmp_path, name, problem):
+    path = files.get(name, tmp_path / name)
+    one_line_value_error(gw.load_dataset, str(path), match="^" + re.escape(str(path)) + ": not a gridworld dataset \\(" + problem)
+    with pytest.raises(ValueError, match=problem):
+        gw.GridWorldCore(gw.EnvConfig(dataset_path=str(path), load_state=True))
+
+
+def test_load_dataset_accepts_a_path_and_0_1_integers(files, tmp_path):
+    assert len(gw.load_dataset(files["dataset.npz"])) == 2
+    with np.load(files["dataset.npz"]) as d:
+        np.savez(tmp_path / "ints.npz", **{**dict(d), "obstacles": d["obstacles"].astype(np.uint8)})
+    assert [s.obstacles.dtype for s in gw.load_dataset(tmp_path / "ints.npz")] == [bool, bool]
+
+
+@pytest.mark.parametrize("text,problem", [
+    ("", "expected a mapping of environment names to settings"),
+    ("stage1:\n  size: [5, 6\n", "not valid YAML"),  # truncated
+    ("stage1: !!python/object:os.system {}\n", "not valid YAML"),
+    ("stage1:\n  size: abc\n", "stage1: invalid environment configuration: size must be an int, got 'abc'"),
+    ("stage1:\n  size: 1\n", "need 2 <= min_size <= size"),
+    ("stage1:\n  sensor: sonar\n", "sensor must be one of"),
+    ("stage1:\n  number_obstacles: -3\n", "number_obstacles and base_steps must be >= 0"),
+    ("stage1:\n  colour: red\n", r"unknown environment setting\(s\): \['colour'\]"),
+    ("stage1:\n  reward: {gain: high}\n", "gain must be a float, got 'high'"),
+    ("- name: [a, b]\n  size: 5\n", "name must be a str"),
+    ("stage1:\n", "expected a mapping of environment names to settings"),
+])
+def test_load_config_bad_files(tmp_path, text, problem):
+    path = tmp_path / "stages.yaml"
+    path.write_text(text)
+    one_line_value_error(gw.load_config, str(path), match="^" + re.escape(str(path)) + ": .*" + problem)
+
+
+@pytest.mark.parametrize("name,problem", [("binary", "not a text file"), ("dataset.npz", "not a text file"),
+                                          ("missing.yaml", "cannot read config"), (".", "cannot read config")])
+def test_load_config_unreadable_files(files, tmp_path, name, problem):
+    path = files.get(name, tmp_path / name)
+    one_line_value_error(gw.load_config, path, match="^" + re.escape(str(path)) + ": " + problem)
+
+
+def test_load_config_names_become_strings(tmp_path):
+    path = tmp_path / "stages.yaml"
+    path.write_text("1:\n  size: 5\n2:\n  size: 6\n")
+    assert {name: c.name for name, c in gw.load_config(path).items()} == {"1": "1", "2": "2"}
+
+
+@pytest.mark.parametrize("settings,problem", [
+    (dict(size=1), "need 2 <= min_size <= size, got size=1"),
+    (dict(size=6, random_size=True, min_size=1), "need 2 <= min_size <= size"),
+    (dict(size=3, number_agents=9), "9 agent\\(s\\) do not fit a 3x3 map"),
+    (dict(size=3, number_obstacles=8), "8 obstacles and 1 agent\\(s\\) do not fit a 3x3 map"),
+    (dict(number_obstacles=-1), "number_obstacles and base_steps must be >= 0, got -1 and 0"),
+    (dict(number_obstacles=-1, map_configuration=str(ROOT / "maps" / "external" / "empty-8-8.map")), "must be >= 0"),
+    (dict(number_agents=0), "number_agents must be >= 1"),
+    (dict(sensor="sonar"), "sensor must be one of"),
+    (dict(observation="pixels"), "observation must be one of"),
+    (dict(reward=gw.RewardParams(structure="selfish")), "reward structure must be one of"),
+    (dict(size=10.0), "size must be an int, got 10.0"),
+    (dict(size=True), "size must be an int, got True"),
+    (dict(sensor_failure="often"), "sensor_failure must be a float"),
+    (dict(faulty_agent=3, number_agents=2), "faulty_agent 3 is not one of the 2 agent"),
+    (dict(faulty_agent_step=-1), "faulty_agent_step must be >= 0"),
+    (dict(base_steps=-5), "base_steps must be >= 0"),
+])
+def test_envconfig_bad_values_are_one_line_value_errors(settings, problem):
+    one_line_value_error(gw.EnvConfig(**settings).validate, match="^invalid environment configuration: .*" + problem)
+    one_line_value_error(gw.GridWorldCore, gw.EnvConfig(**settings), match=problem)
+
+
+@pytest.mark.parametrize("settings,problem", [
+    (dict(map_configuration="no-such.map"), "no-such.map: cannot read map"),
+    (dict(dataset_path="no-such.npz"), "no-such.npz: not a gridworld dataset \\(no such file"),
+    (dict(size=3, number_obstacles=8, random_size=True, min_size=2, number_agents=4), "4 agent\\(s\\) do not fit a 2x2"),
+])
+def test_cores_refuse_unknown_maps_and_crowded_worlds(settings, problem):
+    one_line_value_error(gw.GridWorldCore, gw.EnvConfig(**settings), match=problem)
+    one_line_value_error(gw.GridWorldVectorEnv, 2, gw.EnvConfig(**settings), match=problem)
+    one_line_value_error(gw.parallel_env, gw.EnvConfig(**settings), match=problem)
+
+
+@pytest.mark.parametrize("name,problem", [
+    ("empty", "not a tabular_q table \\(not an .npz file"), ("binary", "not a tabular_q table \\(not an .npz file"),
+    ("half.npz", "not a tabular_q table \\(not an .npz file"), ("array.npz", "not a tabular_q table \\(not an .npz file"),
+    ("missing.npz", "no such table"), ("dataset.npz", "not a tabular_q table \\(no 'keys' array"),
+    ("string_q.npz", "not a tabular_q table \\(Q-values must be floats"),
+    ("negative.npz", "not a tabular_q table \\(negative visit counts\\)"),
+    ("zero_k.npz", "not a tabular_q table \\(K = 0, r = 3; both must be >= 1\\)"),
+])
+def test_qtable_load_bad_files(files, tmp_path, name, problem):
+    path = files.get(name, tmp_path / name)
+    one_line_value_error(tq.QTable.load, str(path), match="^" + re.escape(str(path)) + ": " + problem)
+
+
+# ----------------------------------------------------------------------------- command lines
+def test_gridworld_cli_refuses_unknown_arguments(tmp_path):
+    cli_error(tmp_path, "gridworld.py", "--bnech", match="^error: gridworld.py: unknown argument.*--bnech.*--bench")
+    cli_error(tmp_path, "gridworld.py", "--bench", "--seconds", "3", match="unknown argument")
+    done = subprocess.run([sys.executable, str(ROOT / "gridworld.py")], cwd=tmp_path, capture_output=True, text=True,
+                          timeout=60, env={**os.environ, "PYTHONDONTWRITEBYTECODE": "1"})
+    assert done.returncode == 0 and done.stdout.splitlines()[-1] == "usage: python gridworld.py [--bench]"
+    assert listing(tmp_path) == []
+
+
+TABULAR_BAD = [
+    (["--episodes", "-1"], dict(episodes=-1), "--episodes must be >= 1, got -1"),
+    (["--num-worlds", "0"], dict(num_worlds=0), "--num-worlds must be >= 1, got 0"),
+    (["--log-every", "-5"], dict(log_every=-5), "--log-every must be >= 0"),
+    (["--time-limit", "-1"], dict(time_limit=-1.0), "--time-limit must be >= 0"),
+    (["--size", "1"], dict(size=1), "--size must be >= 2, got 1"),
+    (["--min-size", "1"], dict(min_size=1), "--min-size must be in 2..6 \\(--size\\), got 1"),
+    (["--min-size", "8"], dict(min_size=8), "--min-size must be in 2..6"),
+    (["--memory", "0"], dict(memory=0), "--memory must be >= 1"),
+    (["--sensor-range", "0"], dict(sensor_range=0), "--sensor-range must be >= 1"),
+    (["--memory", "4"], dict(memory=4), "K = 4 with r = 3 gives .* more than an int64 key holds"),
+    (["--sensor", "sonar"], dict(sensor="sonar"), "--sensor must be one of full, camera, lidar, got 'sonar'"),
+    (["--number-obstacles", "-2"], dict(number_obstacles=-2), "--number-obstacles must be >= 0"),
+    (["--number-obstacles", "40"], dict(number_obstacles=40),
+     "invalid environment configuration: 40 obstacles and 1 agent\\(s\\) do not fit a 6x6 map"),
+    (["--algorithm", "td"], dict(algorithm="td"), "unknown algorithm 'td'"),
+    (["--alpha", "0"], dict(alpha=0.0), "need 0 < alpha <= 1"),
+    (["--table-path", "out/table.txt"], dict(table_path="out/table.txt"), "--table-path out/table.txt: must name an .npz"),
+    (["--table-path", "."], dict(table_path="."), "--table-path \\.: must name an .npz"),
+]
+
+
+@pytest.mark.parametrize("flags,args,problem", TABULAR_BAD, ids=[" ".join(f) for f, _, _ in TABULAR_BAD])
+def test_tabular_q_bad_flags(tmp_path, monkeypatch, flags, args, problem):
+    monkeypatch.chdir(tmp_path)  # the default outputs would go to ./runs
+    one_line_value_error(tq.main, tq.Args(**args), match=problem)
+    cli_error(tmp_path, "tabular_q.py", *flags, match="^error: " + problem)
+    assert listing(tmp_path) == []
+
+
+@pytest.mark.parametrize("name,flags,problem", [
+    ("text.npz", [], "not a tabular_q table \\(not an .npz file\\)"),
+    ("half.npz", [], "not a tabular_q table \\(not an .npz file\\)"),
+    ("dataset.npz", [], "not a tabular_q table \\(no 'keys' array"),
+    ("missing.npz", [], "no such table"),
+    ("string_q.npz", [], "not a tabular_q table \\(Q-values must be floats, counts integers"),
+    ("table.npz", ["--memory", "2"], "trained with K = 3, r = 3; this run uses K = 2, r = 3"),
+    ("table.npz", ["--sensor-range", "4"], "trained with K = 3, r = 3; this run uses K = 3, r = 4"),
+    ("table.npz", ["--algorithm", "double-q"], "holds 1 Q-table\\(s\\), double-q uses 2"),
+    ("two_tables.npz", [], "holds 2 Q-table\\(s\\), q-learning uses 1"),
+])
+def test_tabular_q_bad_init_tables(files, tmp_path, name, flags, problem):
+    path = files.get(name, tmp_path / name)
+    before = listing(tmp_path)
+    work = tmp_path / "work"
+    work.mkdir()
+    cli_error(work, "tabular_q.py", "--init-table", str(path), *flags, match="^error: " + re.escape(str(path)) + ": " + problem)
+    assert listing(work) == [] and listing(tmp_path) == sorted(before + ["work"])
+
+
+def test_tabular_q_unwritable_table_path(tmp_path):
+    (tmp_path / "taken").write_text("a file, not a folder")
+    cli_error(tmp_path, "tabular_q.py", "--table-path", "taken/t.npz",
+              match="^error: --table-path taken/t.npz: cannot write under")
+    assert listing(tmp_path) == ["taken"]
+
+
+@pytest.mark.parametrize("flags,problem", [
+    (["--per-size", "0"], "--per-size must be >= 1, got 0"),
+    (["--p2p-total", "-1"], "--p2p-total must be >= 1"),
+    (["--ch5-per-setting", "0"], "--ch5-per-setting must be >= 1"),
+    (["--marl-agents", "0"], "--marl-agents must be >= 1"),
+    (["--marl-agents", "25"], "marl_eval: invalid environment configuration: 25 agent\\(s\\) do not fit a 5x5 map"),
+])
+def test_make_datasets_bad_flags_write_nothing(tmp_path, flags, problem):
+    out = tmp_path / "maps"
+    cli_error(tmp_path, "maps/make_datasets.py", "--out", str(out), *flags, match="^error: " + problem)
+    assert listing(tmp_path) == []
+
+
+def test_make_datasets_out_must_be_a_folder(tmp_path):
+    (tmp_path / "file").write_text("")
+    cli_error(tmp_path, "maps/make_datasets.py", "--out", str(tmp_path / "file"), match="--out .*file: not a folder")
+    assert listing(tmp_path) == ["file"]

@@ -1,0 +1,408 @@
+"""report.py: collect -> JSON, render (pure) -> RESULTS.md, plot -> PNG; --out honoured everywhere, nothing
+half-written, provenance from the JSON, bad input a one-line error; and `python evaluate.py report ...`.
+
+Collecting runs on a few small maps (the report's subsets monkeypatched) with tiny untrained models, so that
+every part runs in seconds; rendering and plotting run on the committed results/*.json.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import re
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import tyro
+
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+import classical_cpp as cc  # noqa: E402
+import evaluate  # noqa: E402
+import gridworld as gw  # noqa: E402
+import report  # noqa: E402
+
+RESULTS = ROOT / "results"
+
+
+def _hashes(folder: Path) -> dict:
+    return {str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
+            for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+def _committed() -> dict:
+    return report.load_results(str(RESULTS))
+
+
+def _table_rows(text: str) -> list[str]:
+    return [ln for ln in text.splitlines() if ln.startswith("| ")]
+
+
+def _copy_results(tmp_path: Path) -> Path:
+    out = tmp_path / "results"
+    shutil.copytree(RESULTS, out)
+    return out
+
+
+def _leftovers(folder: Path) -> list[str]:
+    return [p.name for p in folder.iterdir() if p.name.startswith(".report-") or ".tmp-" in p.name]
+
+
+def _cli(script: str, *args, timeout=120):
+    return subprocess.run([sys.executable, script, *args], cwd=ROOT, capture_output=True, text=True, timeout=timeout,
+                          env={**os.environ, "OMP_NUM_THREADS": "1"})
+
+
+def _one_line_error(r, *words):
+    assert r.returncode != 0
+    assert "Traceback" not in r.stderr
+    err = r.stderr.strip()
+    assert err.startswith("error: ") and "\n" not in err, err
+    for w in words:
+        assert w in err, err
+    return err
+
+
+# ----------------------------------------------------------------------------- render: pure, from the JSON
+def test_render_keeps_every_table_row_of_the_committed_results_md():
+    text = report.render(_committed())
+    committed = (RESULTS / "RESULTS.md").read_text()
+    rewards = committed[committed.index("| reward |"):].split("\n\n")[0] if "| reward |" in committed else ""
+    lost = set(_table_rows(committed)) - set(_table_rows(text)) - set(_table_rows(rewards))  # rewards: + a column
+    assert not lost, sorted(lost)[:5]
+    headings = [ln for ln in committed.splitlines() if ln.startswith("## ")]
+    assert all(h in text.splitlines() for h in headings)
+    for figure in report.FIGURES.values():
+        assert f"({figure})" in text
+
+
+def test_render_is_a_pure_function_of_the_json(monkeypatch):
+    results = _committed()
+    first = report.render(results)
+
+    def forbidden(*a, **k):
+        raise AssertionError("render must not run anything, read the clock or ask git")
+
+    monkeypatch.setattr(report.subprocess, "run", forbidden)
+    monkeypatch.setattr(report.time, "time", forbidden)
+    monkeypatch.setattr(report, "datetime", None)
+    monkeypatch.setattr(report.classical_cpp, "compare", forbidden)
+    monkeypatch.setattr(report, "open", forbidden, raising=False)
+    assert report.render(results) == first
+    assert report.render(json.loads(json.dumps(results))) == first  # the same JSON, the same text
+
+
+def test_render_types_no_provenance_by_hand():
+    text = report.render(_committed())
+    for typed in ("issue #", "on a 2-core CPU machine", "one core of a 2-core CPU", "evaluate.py report",
+                  "15,000 steps each", "K = 0.25", "no camera stages trained"):
+        assert typed not in text
+    # the committed results JSON predate provenance: every such cell says so
+    rows = [r for r in _table_rows(text) if r.startswith("| `")]
+    assert len(rows) == 4 and all(r.count("not recorded") == 7 for r in rows)
+
+
+def test_provenance_and_model_keys_are_read_back():
+    results = _committed()
+    results["classical"]["provenance"] = {"git_commit": "abcdef0123456789", "git_dirty": True, "cpu": "Test CPU 9000",
+                                          "cores": 7, "torch_threads": None, "date": "2030-01-02T03:04:05+00:00",
+                                          "wall_seconds": 1234.4, "flags": {"per_size": 3, "reuse": False,
+                                                                           "parts": ["classical"]}}
+    model = results["rainbow_marl"]["model"]
+    model["provenance"] = {"git_commit": "1234567deadbeef", "git_dirty": False, "cpu": "Trainer CPU", "cores": 3,
+                           "torch_threads": 2, "date": "2029-05-06T00:00:00+00:00", "wall_seconds": 600.0}
+    model["parent"] = {"path": "models/rainbow_cpp.pt", "sha256": "0123456789abcdef" * 4, "global_step": 42000,
+                       "stage": "n2", "provenance": {"git_commit": "feedfacecafe", "git_dirty": False},
+                       "parent": {"path": "runs/first/rainbow_cpp.pt", "global_step": 7}}
+    text = report.render(results)
+    row = next(r for r in _table_rows(text) if r.startswith("| `classical_cpp.json`"))
+    assert row == ("| `classical_cpp.json` | 2030-01-02T03:04:05+00:00 | abcdef0 (with uncommitted changes) | "
+                   "Test CPU 9000 | 7 | not recorded | 1,234 s | `--per-size 3 --no-reuse --parts classical` |")
+    assert ("Trained on machine: Trainer CPU (3 cores); torch threads: 2; git commit: 1234567; "
+            "date: 2029-05-06T00:00:00+00:00. Parent: `models/rainbow_cpp.pt` (sha256 0123456789ab, 42,000 steps, "
+            "last stage n2, git commit feedfac) ← `runs/first/rainbow_cpp.pt` (7 steps, git commit not recorded). "
+            "Training: ") in text  # then the trainer's note, from the same JSON
+    tabular = results["tabular"]["model"]
+    tabular.update(git_commit="89abcdef01", git_dirty=False, cpu="Table CPU", cores=5, date="2028-01-01")
+    assert ("Trained on machine: Table CPU (5 cores); git commit: 89abcde; date: 2028-01-01. Greedy on"
+            in report.render(results))  # tabular_q keeps them at the top level, and has no torch
+    assert "10 min of training" in text  # the trainer's wall time first
+
+
+def test_reference_numbers_come_from_the_one_constant():
+    results = _committed()
+    text = report.render(results)
+    mr = results["rainbow_marl"]["agents"]
+    for n, target in report.REFERENCE["rainbow_marl_time_save"].items():
+        verdict = "met" if mr[n]["time_save"] <= target else "not met"
+        assert f"N = {n}: {mr[n]['time_save']:.3f} against ≤ {target} ({verdict})" in text
+    seconds = report.REFERENCE["table_5_1_seconds"]["watkins"]
+    assert f"| watkins | 125 / {seconds[0]} | 126 / {seconds[1]} |" in text
+    changed = json.loads(json.dumps(results))
+    old = report.REFERENCE["rainbow_cpp_overlap"]
+    report.REFERENCE["rainbow_cpp_overlap"] = 0.04
+    try:
+        assert "mean overlap ≤ 0.04 at" in report.render(changed)
+    finally:
+        report.REFERENCE["rainbow_cpp_overlap"] = old
+
+
+def test_missing_learned_parts_say_not_collected():
+    results = _committed()
+    results["rainbow_cpp"] = results["rainbow_marl"] = results["tabular"] = None
+    text = report.render(results)
+    assert text.count("*Not collected:*") == 3 + 1 + 1  # rainbow's three sections, marl's, tabular's Fig. 5.5
+    assert "`python report.py collect --parts rainbow_marl`" in text
+    assert "**Fig. 5.4**" in text  # the training runs are there all the same
+
+
+# ----------------------------------------------------------------------------- render / plot commands
+def test_render_and_plot_write_into_out_only(tmp_path):
+    committed = _hashes(RESULTS)
+    out = _copy_results(tmp_path)
+    (out / "RESULTS.md").unlink()
+    for figure in report.FIGURES.values():
+        (out / figure).unlink()
+    assert report.main(report.Render(out=str(out))) == ["RESULTS.md"]
+    assert (out / "RESULTS.md").read_text() == report.render(_committed())
+    written = report.main(report.Plot(out=str(out)))
+    assert sorted(written) == sorted(report.FIGURES.values())
+    for figure in report.FIGURES.values():
+        assert (out / figure).stat().st_size > 10_000
+    assert _hashes(RESULTS) == committed and not _leftovers(tmp_path)
+
+
+def test_all_with_reuse_runs_nothing_when_every_json_is_there(tmp_path, monkeypatch):
+    out = _copy_results(tmp_path)
+
+    def forbidden(*a, **k):
+        raise AssertionError("--reuse must not re-run a part whose JSON is there")
+
+    monkeypatch.setattr(cc, "compare", forbidden)
+    for name in ("rainbow_results", "marl_results", "tabular_results"):
+        monkeypatch.setattr(report, name, forbidden)
+    jsons = {k: v for k, v in _hashes(out).items() if k.endswith(".json")}
+    written = report.main(report.All(out=str(out), reuse=True, quiet=True))
+    assert written == sorted(["RESULTS.md", *report.FIGURES.values()])
+    assert {k: v for k, v in _hashes(out).items() if k.endswith(".json")} == jsons
+
+
+def test_a_part_whose_model_is_not_trained_is_skipped(tmp_path, monkeypatch, capsys):
+    monkeypatch.setitem(report.MODELS, "rainbow_marl", str(tmp_path / "nothing.pt"))
+    args = report.Collect(out=str(tmp_path), parts=("rainbow_marl", "classical", "rainbow_marl"))
+    assert report.parts_to_collect(args) == ["classical"]
+    assert "rainbow_marl: skipped" in capsys.readouterr().out
+    shutil.copy(RESULTS / "classical_cpp.json", tmp_path / "classical_cpp.json")
+    assert report.parts_to_collect(report.Collect(out=str(tmp_path), reuse=True)) == ["rainbow_cpp", "tabular"]
+
+
+# ----------------------------------------------------------------------------- collect, on tiny settings
+def _tiny_model(module, path: Path, extra: dict) -> str:
+    """An untrained export of `module`'s network (hidden 16) and the JSON a trainer writes beside it."""
+    q = module.QNetwork(3, module.VIEW, 16, 0.5)
+    module.save_checkpoint(str(path), {"weights": {k: v.half() for k, v in q.state_dict().items()
+                                                   if "sigma" not in k and "eps" not in k}, "frames": 3, "hidden": 16})
+    path.with_suffix(".json").write_text(json.dumps({"args": {"hidden": 16, "init_from": None, **extra},
+                                                     "global_step": 10, "stage": "tiny", "wall_seconds": 60.0}))
+    return str(path)
+
+
+@pytest.fixture
+def tiny(tmp_path, monkeypatch):
+    """The report's map subsets cut to a few small maps, and tiny models in place of the committed ones."""
+    import rainbow_cpp
+    import rainbow_marl
+    import tabular_q
+    cpp, ext, marl = cc.cpp_eval_subset, cc.external_episodes, cc.marl_eval_subset
+
+    def cpp_subset(per_size):
+        scenarios, sizes = cpp(per_size)
+        keep = np.flatnonzero(sizes <= 7)
+        return [scenarios[i] for i in keep], sizes[keep]
+
+    monkeypatch.setattr(cc, "cpp_eval_subset", cpp_subset)
+    monkeypatch.setattr(cc, "REPORT_BANDS", ((5, 6), (7, 7)))
+    monkeypatch.setattr(cc, "external_episodes", lambda: [e for e in ext() if e[0] == "empty-8-8.map"][:2])
+    monkeypatch.setattr(cc, "marl_eval_subset", lambda agents, every=cc.MARL_EVERY: tuple(
+        x[:2] for x in marl(agents, every)))
+    monkeypatch.setattr(report, "MARL_AGENTS", range(1, 3))
+    ch5 = np.load(ROOT / "maps" / "ch5_eval.npz")
+    keep = np.flatnonzero((ch5["size"] <= 6) & (ch5["requested_obstacles"] <= 2))[::25]
+    scenarios = gw.load_dataset(str(ROOT / "maps" / "ch5_eval.npz"))
+    gw.save_dataset(str(tmp_path / "ch5.npz"), [scenarios[i] for i in keep], size=ch5["size"][keep],
+                    requested_obstacles=ch5["requested_obstacles"][keep])
+    monkeypatch.setattr(report, "CH5_EVAL", str(tmp_path / "ch5.npz"))
+    models = tmp_path / "models"
+    models.mkdir()
+    table = models / "tabular_q.npz"
+    tabular_q.QTable(3, 3).save(str(table))
+    table.with_suffix(".json").write_text(json.dumps({
+        "args": {"algorithm": "q-learning", "min_size": 4, "size": 6, "number_obstacles": 2, "obstacles_random": True,
+                 "corner_starts": False}, "episodes": 5, "states": 0, "wall_seconds": 1.0, "episodes_per_second": 5.0,
+        "machine": "a test machine", "curve_rho": [1.0]}))
+    monkeypatch.setattr(report, "MODELS", {
+        "rainbow_cpp": _tiny_model(rainbow_cpp, models / "rainbow_cpp.pt", {"heuristic_dead_ends": True}),
+        "rainbow_marl": _tiny_model(rainbow_marl, models / "rainbow_marl.pt", {}), "tabular": str(table)})
+    return tmp_path
+
+
+def test_all_on_tiny_settings_writes_into_out_only(tiny):
+    committed = _hashes(RESULTS)
+    out = tiny / "report"
+    written = report.main(report.All(out=str(out), per_size=1, p2p_maps=2, quiet=True))
+    assert _hashes(RESULTS) == committed  # `--out DIR` never touches the committed results
+    jsons = sorted(report.PARTS.values())
+    assert written == sorted(["RESULTS.md", *jsons, *[f for k, f in report.FIGURES.items() if k != "fig5_4"]])
+    assert not _leftovers(tiny) and not _leftovers(out)
+    commit = report._git("rev-parse", "HEAD")
+    for rel in jsons:
+        data = json.loads((out / rel).read_text())
+        p = data["provenance"]
+        assert p["git_commit"] == commit and p["cores"] == os.cpu_count() and p["cpu"] == report._cpu()
+        assert p["wall_seconds"] >= 0 and re.fullmatch(r"\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d\+00:00", p["date"])
+        assert p["flags"] == {"parts": list(report.PARTS), "reuse": False, "per_size": 1, "p2p_maps": 2}
+    classical = json.loads((out / "classical_cpp.json").read_text())
+    assert list(classical["cpp_eval"]["greedy"]) == ["plan_ms_per_map", "all", "5-6", "7-7"]
+    rb = json.loads((out / "rainbow_cpp.json").read_text())
+    assert sorted(rb["full"], key=int) == ["5", "6", "7"] and rb["p2p"]["maps"] == 2 and rb["model"]["stage"] == "tiny"
+    assert all(v["completion"] == 1.0 for v in rb["full"].values())  # the heuristic finishes what the net cannot
+    mr = json.loads((out / "rainbow_marl.json").read_text())
+    assert list(mr["agents"]) == ["1", "2"] and list(mr["faulty"]) == ["2"] and mr["agents"]["2"]["maps"] == 2
+    fig55 = json.loads((out / "tabular" / "fig5_5.json").read_text())
+    assert {(s["size"], s["obstacles"]) for s in fig55["settings"]} == {(4, 0), (4, 2), (6, 0), (6, 2)}
+    assert "curve_rho" not in fig55["model"]
+    text = (out / "RESULTS.md").read_text()
+    assert text == report.render(report.load_results(str(out)))
+    for rel in jsons:  # the provenance table reads back what collect recorded
+        p = json.loads((out / rel).read_text())["provenance"]
+        row = next(r for r in _table_rows(text) if r.startswith(f"| `{rel}` |"))
+        assert row.startswith(f"| `{rel}` | {p['date']} | {report._commit(p)} | {report.recorded(p['cpu'])} | {p['cores']} |")
+    assert "**Fig. 5.4**" not in text and "machine: a test machine" in text
+
+
+def test_a_failing_collect_leaves_out_as_it_was(tiny, monkeypatch):
+    out = _copy_results(tiny)
+    before = _hashes(out)
+
+    def broken(*a, **k):
+        raise ValueError("tabular broke")
+
+    monkeypatch.setattr(report, "tabular_results", broken)
+    with pytest.raises(ValueError, match="tabular broke"):  # classical ran, then tabular failed
+        report.main(report.All(out=str(out), parts=("classical", "tabular"), per_size=1, quiet=True))
+    assert _hashes(out) == before and not _leftovers(tiny)
+    with pytest.raises(ValueError, match="tabular broke"):
+        report.main(report.Collect(out=str(tiny / "new" / "folder"), parts=("classical", "tabular"), quiet=True))
+    assert not (tiny / "new").exists() and not _leftovers(tiny)
+
+
+# ----------------------------------------------------------------------------- bad input
+@pytest.mark.parametrize("kw, message", [
+    (dict(parts=("classical", "lkh")), "--parts: unknown part(s) lkh"),
+    (dict(per_size=0), "--per-size must be >= 1, got 0"),
+    (dict(per_size=-3), "--per-size must be >= 1"),
+    (dict(p2p_maps=0), "--p2p-maps must be >= 1"),
+])
+def test_bad_collect_flags_are_value_errors_and_write_nothing(tmp_path, kw, message):
+    with pytest.raises(ValueError, match=re.escape(message)):
+        report.main(report.Collect(out=str(tmp_path / "out"), **kw))
+    assert not list(tmp_path.iterdir())
+
+
+def test_out_that_is_a_file_is_a_value_error(tmp_path):
+    (tmp_path / "file").write_text("x")
+    for command in (report.Collect, report.Render, report.Plot, report.All):
+        with pytest.raises(ValueError, match="not a folder"):
+            report.main(command(out=str(tmp_path / "file")))
+    assert [p.name for p in tmp_path.iterdir()] == ["file"]
+
+
+@pytest.mark.parametrize("content, message", [
+    (b"", "not a JSON file"), (bytes(range(256)), "not a JSON file"), (b"[1, 2]", "not a JSON object"),
+    (b'{"per_size": 20}', "unexpected content (KeyError: 'cpp_eval')"),
+    (b'{"per_size": 20, "lkh_time_limit_s": 10, "cpp_eval": [], "external": {}, "marl_eval": {}}', "unexpected content"),
+])
+def test_bad_results_json_is_a_value_error_naming_it(tmp_path, content, message):
+    out = _copy_results(tmp_path)
+    (out / "classical_cpp.json").write_bytes(content)
+    before = _hashes(out)
+    for command in (report.Render, report.Plot):
+        with pytest.raises(ValueError, match=re.escape(str(out / "classical_cpp.json")) + ".*" + re.escape(message)):
+            report.main(command(out=str(out)))
+    assert _hashes(out) == before and not _leftovers(tmp_path)
+
+
+def test_bad_model_json_in_a_results_file_names_it(tmp_path):
+    out = _copy_results(tmp_path)
+    data = json.loads((out / "rainbow_marl.json").read_text())
+    del data["model"]["global_step"]
+    (out / "rainbow_marl.json").write_text(json.dumps(data))
+    with pytest.raises(ValueError, match=re.escape(str(out / "rainbow_marl.json")) + ".*global_step"):
+        report.main(report.Render(out=str(out)))
+
+
+def test_render_without_results_is_a_value_error(tmp_path):
+    with pytest.raises(ValueError, match="no classical_cpp.json; run `python report.py collect"):
+        report.main(report.Render(out=str(tmp_path)))
+    assert not list(tmp_path.iterdir())
+
+
+# ----------------------------------------------------------------------------- the command lines
+def test_cli_render_into_a_copy_matches_the_pure_render(tmp_path):
+    committed = _hashes(RESULTS)
+    out = _copy_results(tmp_path)
+    (out / "RESULTS.md").unlink()
+    r = _cli("report.py", "render", "--out", str(out))
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip() == f"wrote RESULTS.md into {out}"
+    assert (out / "RESULTS.md").read_text() == report.render(_committed())
+    (out / "RESULTS.md").unlink()
+    r = _cli("evaluate.py", "report", "render", "--out", str(out))  # the same CLI under evaluate.py
+    assert r.returncode == 0, r.stderr
+    assert (out / "RESULTS.md").read_text() == report.render(_committed())
+    assert _hashes(RESULTS) == committed
+
+
+def test_cli_bad_inputs_are_one_line_errors(tmp_path):
+    _one_line_error(_cli("report.py", "collect", "--parts", "nope", "--out", str(tmp_path / "a")), "--parts", "nope")
+    _one_line_error(_cli("report.py", "--per-size", "0", "--out", str(tmp_path / "a")), "--per-size")
+    _one_line_error(_cli("report.py", "render", "--out", str(tmp_path)), "no classical_cpp.json")
+    (tmp_path / "classical_cpp.json").write_bytes(bytes(range(256)))
+    _one_line_error(_cli("report.py", "plot", "--out", str(tmp_path)), str(tmp_path / "classical_cpp.json"))
+    _one_line_error(_cli("evaluate.py", "report", "render", "--out", str(tmp_path)), "classical_cpp.json")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["classical_cpp.json"]
+
+
+def test_cli_subcommands_and_help():
+    r = _cli("evaluate.py", "--help")
+    assert r.returncode == 0 and "report" in r.stdout and "--policy" in r.stdout
+    r = _cli("evaluate.py", "report", "--help")
+    assert r.returncode == 0 and all(c in r.stdout for c in ("all", "collect", "render", "plot", "--reuse"))
+    r = _cli("report.py", "--help")
+    assert r.returncode == 0 and "--per-size" in r.stdout and "(default: all)" in r.stdout
+
+
+def test_cli_parses_subcommands_with_defaults():
+    assert report.cli([]) == report.All()
+    assert report.cli(["--reuse", "--per-size", "3"]) == report.All(reuse=True, per_size=3)
+    assert report.cli(["collect", "--parts", "classical", "tabular"]) == report.Collect(parts=("classical", "tabular"))
+    assert report.cli(["render", "--out", "x"]) == report.Render(out="x")
+    assert report.cli(["plot"]) == report.Plot()
+
+
+def test_evaluate_flags_need_no_subcommand(tmp_path):
+    parse = lambda args: tyro.cli(report.beside(evaluate.Args(), "evaluate", "evaluate"), default=evaluate.Args(),
+                                  args=args, config=report.CLI_CONFIG)
+    assert parse(["--policy", "lkh", "--agents", "1"]) == evaluate.Args(policy="lkh")
+    assert parse(["evaluate", "--limit", "2"]) == evaluate.Args(limit=2)
+    assert parse(["report", "--reuse"]) == report.All(reuse=True)
+    assert parse(["report", "render", "--out", str(tmp_path)]) == report.Render(out=str(tmp_path))
+    r = _cli("evaluate.py", "--policy", "greedy", "--maps", "maps/external/empty-8-8.map", "--out", str(tmp_path / "e"))
+    assert r.returncode == 0, r.stderr
+    assert (tmp_path / "e" / "summary.json").exists()
