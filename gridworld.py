@@ -30,10 +30,14 @@ Conventions
   Networks read VIEW_SIZE, FRAME_FEATURES (last_action + out_of_bounds / OUT_OF_BOUNDS_SCALE,
   built by `frame_features`) and BATTERY_FEATURES from here rather than hard-coding 41, 13, 100, 1.
 - Tabular observation (§5.3.1): 8 range readings r' in the order N, S, E, W, NE, NW, SE, SW.
+- Multiscale observation (observation="multiscale", not in the dissertation; after Jonnarth et al., ICML 2024):
+  the deep dict with "map" uint8 (scales * 5, scale_view, scale_view), per scale s (scale_factor**s cells a
+  block, agent-centred) [POI, covered, obstacle, agent means, frontier any]; see GridWorldCore._multiscale.
 """
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import math
 import numbers
@@ -55,9 +59,11 @@ from pettingzoo import ParallelEnv
 NORTH, SOUTH, WEST, EAST, WAIT = 0, 1, 2, 3, 4
 ACTION_DELTAS = np.array([[-1, 0], [1, 0], [0, -1], [0, 1], [0, 0]], dtype=np.int64)
 POI, COVERED, OBSTACLE, AGENT = 0, 1, 2, 3  # channel indices of the deep observation
+FRONTIER = 4  # the multiscale observation's fifth channel (known free cells next to unseen ones)
+MULTISCALE_CHANNELS = 5  # per scale: POI, COVERED, OBSTACLE, AGENT, FRONTIER
 SENSORS = ("full", "camera", "lidar")
 STRUCTURES = ("competitive", "cooperative", "size_invariant")
-OBSERVATIONS = ("deep", "tabular")
+OBSERVATIONS = ("deep", "tabular", "multiscale")
 STRUCTURED_FAMILIES = ("rooms", "corridors", "clutter", "maze")  # map families beyond Algorithm 9's random maps
 MAP_FAMILIES = ("random", *STRUCTURED_FAMILIES, "mixed")  # "mixed": one family drawn per map
 FREE_CHARS, BLOCKED_CHARS = set(".GS"), set("@OTW#")
@@ -181,6 +187,13 @@ class EnvConfig:
     view_size: int = VIEW_SIZE
     edge_compression: bool = True
     observation: str = "deep"
+    """"deep" (§6.3.2, the default), "tabular" (§5.3.1) or "multiscale" (scales x 5 channels of scale_view x
+    scale_view block means, docs/environment.md; not in the dissertation)."""
+    scales: int = 3
+    """multiscale only: number of scales; scale s (0 = finest) has cells of scale_factor**s x scale_factor**s."""
+    scale_factor: int = 3
+    scale_view: int = 11
+    """multiscale only: side (odd) of every scale's window, in blocks."""
     reward: RewardParams = field(default_factory=RewardParams)
     name: str = ""
     base_steps: int = 0
@@ -239,6 +252,12 @@ class EnvConfig:
             bad(f"sensor must be one of {SENSORS}, got {self.sensor!r}")
         if self.observation not in OBSERVATIONS:
             bad(f"observation must be one of {OBSERVATIONS}, got {self.observation!r}")
+        if self.scales < 1 or self.scale_factor < 2 or self.scale_view < 3 or self.scale_view % 2 == 0:
+            bad(f"need scales >= 1, scale_factor >= 2 and an odd scale_view >= 3, got scales={self.scales} "
+                f"scale_factor={self.scale_factor} scale_view={self.scale_view}")
+        if self.scales > 12 or self.scale_view * self.scale_factor ** (self.scales - 1) > 4096:
+            bad(f"the coarsest multiscale window, scale_view * scale_factor ** (scales - 1) cells, must span at most "
+                f"4096, got scales={self.scales} scale_factor={self.scale_factor} scale_view={self.scale_view}")
         if self.reward.structure not in STRUCTURES:
             bad(f"reward structure must be one of {STRUCTURES}, got {self.reward.structure!r}")
         if self.size < 2 or (self.random_size and not 2 <= self.min_size <= self.size):
@@ -569,6 +588,19 @@ def _flood(passable: np.ndarray, seed: np.ndarray) -> np.ndarray:
         if np.array_equal(grown, reach):
             return _unpack(reach, passable.shape[-1])
         reach = grown
+
+
+@functools.lru_cache(maxsize=16)
+def _block_mean_table(scales: int, factor: int) -> tuple[np.ndarray, np.ndarray]:
+    """The multiscale observation's rounding: table[offsets[s] + n] = round-half-up(255 * n / a) (uint8) for
+    n = 0..a cells of a block of a = factor**(2s) cells at scale s."""
+    area = factor ** (2 * np.arange(scales, dtype=np.int64))
+    offsets = np.concatenate([[0], np.cumsum(area + 1)[:-1]])
+    n = np.concatenate([np.arange(a + 1) for a in area])
+    a = np.repeat(area, area + 1)
+    table = ((510 * n + a) // (2 * a)).astype(np.uint8)
+    table.flags.writeable = offsets.flags.writeable = False  # shared by every core (cached)
+    return table, offsets
 
 
 def _line_of_sight_table(r: int) -> tuple[np.ndarray, np.ndarray]:
@@ -1402,8 +1434,18 @@ class GridWorldCore:
 
     # --- observations -------------------------------------------------------------------
     def observe(self) -> dict[str, np.ndarray]:
-        """Deep observation of every agent (§6.3.2); arrays with leading axes (B, N)."""
+        """Deep observation of every agent (§6.3.2), or the multiscale one (observation="multiscale": `map` is
+        (scales * 5, scale_view, scale_view), see _multiscale); arrays with leading axes (B, N)."""
         B, N, V, c = self.B, self.N, self.V, self.c
+        if self.config.observation == "multiscale":
+            oob = np.zeros((B * N, 4, 2), np.float32)
+            if self.any_large:
+                self._compress(None, oob)  # out_of_bounds as in the deep observation (eq. 6.5), no window to edit
+            battery = (self.battery / self.budget).astype(np.float32)
+            return {"map": self._multiscale(),
+                    "out_of_bounds": oob.reshape(B, N, 4, 2),
+                    "last_action": ONE_HOT[self.last_action],
+                    "battery": battery.reshape(B, 1, 1) if N == 1 else battery[:, None, None].repeat(N, 1)}
         pos = self.pos.ravel()
         start = pos - c * (self.Pw + 1)
         if not self.all_active:  # absent agents (parked in the padding) get a dummy window
@@ -1422,7 +1464,7 @@ class GridWorldCore:
         """Algorithm 11 for agents whose map reaches past the window core (offsets beyond ±R):
         rows/cols 1 and V-2 become the mean of everything beyond, the outer ring stays
         obstacle; `oob` gets, per direction N, S, W, E, [rows/cols beyond, known points of
-        interest beyond] (eq. 6.5)."""
+        interest beyond] (eq. 6.5). maps=None: only `oob` (the multiscale observation)."""
         V, c, R = self.V, self.c, self.V // 2 - 1
         B, N = self.B, self.N
         b = np.repeat(np.arange(B), N)
@@ -1432,16 +1474,17 @@ class GridWorldCore:
         far = np.flatnonzero((beyond > 0).any(1) & self.active.ravel())
         if len(far) == 0:
             return maps
-        maps = maps.copy()
+        maps = None if maps is None else maps.copy()
         bk, yk, xk, hk, wk = b[far], y[far], x[far], h[far], w[far]
         worlds, q = np.unique(bk, return_inverse=True)
         known = self.canvas[worlds, c:c + self.H, c:c + self.W].transpose(0, 3, 1, 2) > 0
-        mk = maps[far]
-        mk[:, [0, V - 1], :] = CODE[OBSTACLE]
-        mk[:, :, [0, V - 1]] = CODE[OBSTACLE]
-        if self.config.edge_compression:
-            self._average_edges(mk, known, q, yk, xk, hk, wk)
-        maps[far] = mk
+        if maps is not None:
+            mk = maps[far]
+            mk[:, [0, V - 1], :] = CODE[OBSTACLE]
+            mk[:, :, [0, V - 1]] = CODE[OBSTACLE]
+            if self.config.edge_compression:
+                self._average_edges(mk, known, q, yk, xk, hk, wk)
+            maps[far] = mk
         poi_rows, poi_cols = known[:, POI].sum(2)[q], known[:, POI].sum(1)[q]  # (K, H), (K, W)
         rows, cols = np.arange(self.H), np.arange(self.W)
         oob[far, :, 0] = np.maximum(beyond[far], 0)
@@ -1488,6 +1531,62 @@ class GridWorldCore:
         mk[:, [1, V - 2], :] = edge_codes(ns, x, w, n_rows, n_cols, corner)
         mk[:, :, [1, V - 2]] = edge_codes(we.transpose(0, 1, 3, 2), y, h, n_cols, n_rows,
                                           corner.transpose(0, 1, 3, 2)).transpose(0, 2, 1)
+
+    def _multiscale(self) -> np.ndarray:
+        """Multiscale maps (B, N, scales * 5, v, v) uint8, v = scale_view, scale-major: scale s (0 = finest) has
+        blocks of b x b map cells, b = scale_factor**s, block [i, j] covering map rows y - b//2 + (i - v//2) * b
+        .. + b - 1 (cols likewise) around the agent's cell [y, x]: the agent's cell is the centre of the centre
+        block for odd b, the cell below and right of its centre for even b. Channels per scale [POI, COVERED,
+        OBSTACLE, AGENT, FRONTIER]; the first four are round-half-up(255 * fraction of the block's b*b cells),
+        out of the map counting as obstacle and unseen cells as nothing; FRONTIER is 255 if any cell of the
+        block is a known free cell 4-adjacent to an unseen one, else 0. Obstacle is a mean so that the network
+        sees density (a wall, a scattered block, how much of the block lies past the border) while a frontier
+        is a line one cell thin, as a mean about 255/b per cell of it, and a single frontier cell far away
+        (the only lead left to unexplored space) would fade to 3 at b = 9 and round to 0 past 510 cells: as
+        `any` it stays fully visible at every scale. Block sums are read off integral images of each world
+        (four corner lookups per block, block edges clipped to the map): no per-agent loop."""
+        cfg, B, N, H, W, c = self.config, self.B, self.N, self.H, self.W, self.c
+        S, f, v, K, u64 = cfg.scales, cfg.scale_factor, cfg.scale_view, B * N, np.uint64
+        # integral images [b, y, x] = sums over map cells [:y, :x] of the known map's four channels, packed as
+        # lanes of uint64 words. uint64 arithmetic is exact modulo 2**64, so a block's sum (the sum of its lane
+        # counts << lane offsets) decodes exactly whenever no count in a block can fill a lane: 16-bit lanes
+        # while the map or the coarsest block has fewer than 65536 cells, else 32-bit (blocks < 2**32 cells)
+        lane = np.uint16 if min(H * W, f ** (2 * S - 2)) < 1 << 16 else np.uint32
+        cells = np.empty((B, H, W, 4), lane)
+        np.bitwise_and(self.canvas[:, c:c + H, c:c + W], 1, out=cells)  # channel bytes 0/255 -> 0/1
+        packed = cells.view(u64)  # (B, H, W, words)
+        integral = np.zeros((B, H + 1, W + 1, packed.shape[-1]), u64)
+        np.cumsum(packed, 1, out=integral[:, 1:, 1:])
+        np.cumsum(integral[:, 1:, 1:], 2, out=integral[:, 1:, 1:])
+        side = f ** np.arange(S, dtype=np.int64)  # block side per scale
+        edges = (np.arange(v + 1) - v // 2) * side[:, None] - (side // 2)[:, None]  # (S, v + 1) block edge offsets
+        b = np.repeat(np.arange(B), N)
+        yx, hw = self.agent_cells().reshape(K, 2), self.hw[b]
+        rows = np.clip(yx[:, 0, None, None] + edges, 0, hw[:, 0, None, None])  # (K, S, v + 1), clipped to the map
+        cols = np.clip(yx[:, 1, None, None] + edges, 0, hw[:, 1, None, None])
+        idx = (b[:, None, None, None] * (H + 1) + rows[..., :, None]) * (W + 1) + cols[..., None, :]
+        corner = integral.reshape(-1, packed.shape[-1])[idx]  # (K, S, v + 1, v + 1, words)
+        sums = (corner[:, :, 1:, 1:] - corner[:, :, :-1, 1:]) - (corner[:, :, 1:, :-1] - corner[:, :, :-1, :-1])
+        table, offsets = _block_mean_table(S, f)
+        counts = np.empty((K, S, 4, v, v), np.int32)  # index into `table`: scale offset + count
+        np.add(sums.view(lane).transpose(0, 1, 4, 2, 3), offsets[:, None, None, None], out=counts)
+        outside = side[:, None, None] ** 2 - np.diff(rows)[..., :, None] * np.diff(cols)[..., None, :]
+        counts[:, :, OBSTACLE] += outside.astype(np.int32)  # out of the map counts as obstacle
+        out = np.empty((K, S, MULTISCALE_CHANNELS, v, v), np.uint8)
+        np.take(table, counts, out=out[:, :, :FRONTIER])
+        if cfg.sensor == "full":  # everything is seen: no frontier
+            out[:, :, FRONTIER] = 0
+        else:  # out of the map is seen (a known obstacle): no frontier there
+            seen = self.seen[:, c - 1:c + H + 1, c - 1:c + W + 1]
+            front = np.zeros((B, H + 1, W + 1), np.int32)
+            front[:, 1:, 1:] = (seen[:, 1:-1, 1:-1] & ~self.obstacle[:, c:c + H, c:c + W]
+                                & ~(seen[:, :-2, 1:-1] & seen[:, 2:, 1:-1] & seen[:, 1:-1, :-2] & seen[:, 1:-1, 2:]))
+            np.cumsum(front[:, 1:, 1:], 1, out=front[:, 1:, 1:])
+            np.cumsum(front[:, 1:, 1:], 2, out=front[:, 1:, 1:])
+            fc = front.reshape(-1)[idx]
+            out[:, :, FRONTIER] = ((fc[:, :, 1:, 1:] - fc[:, :, :-1, 1:])
+                                   != (fc[:, :, 1:, :-1] - fc[:, :, :-1, :-1])) * np.uint8(255)  # any
+        return out.reshape(B, N, S * MULTISCALE_CHANNELS, v, v)
 
     def observe_tabular(self) -> np.ndarray:
         """§5.3.1 readings r' for every agent, (B, N, 8) int8 in the order N, S, E, W, NE, NW,
@@ -1628,8 +1727,10 @@ def agent_observation_space(cfg: EnvConfig) -> spaces.Space:
     if cfg.observation == "tabular":
         return spaces.Box(-1, max(cfg.sensor_range, 2), (8,), np.int8)
     V = cfg.view_size
+    shape = ((cfg.scales * MULTISCALE_CHANNELS, cfg.scale_view, cfg.scale_view) if cfg.observation == "multiscale"
+             else (4, V, V))
     return spaces.Dict({
-        "map": spaces.Box(0, 255, (4, V, V), np.uint8),
+        "map": spaces.Box(0, 255, shape, np.uint8),
         "out_of_bounds": spaces.Box(0, np.inf, (4, 2), np.float32),
         "last_action": spaces.Box(0, 1, (5,), np.float32),
         "battery": spaces.Box(0, 1, (BATTERY_FEATURES,), np.float32),
@@ -1657,7 +1758,8 @@ def _configure(core: GridWorldCore, config, changes: dict) -> None:
     new = _make_config(config if config is not None else core.config, changes)
     if (agent_observation_space(new) != agent_observation_space(core.config)
             or new.number_agents != core.config.number_agents):
-        raise ValueError("view_size, observation and number_agents are fixed once an env is made")
+        raise ValueError("view_size, observation (scales, scale_factor, scale_view) and number_agents are fixed "
+                         "once an env is made")
     core.configure(new)
 
 
@@ -1938,6 +2040,28 @@ def benchmark(seconds: float = 1.0, repeats: int = 3, batch: int = 64) -> list[d
     return rows
 
 
+def observation_benchmark(seconds: float = 1.0, repeats: int = 3, batch: int = 64) -> list[dict]:
+    """Agent-steps/s of the VectorEnv (one agent, random actions, autoreset, obstacles 10% of the cells) with the
+    deep and the multiscale observation (default scales) on 20x20 and 50x50 maps; medians of `repeats` windows."""
+    rows = []
+    for size in (20, 50):
+        for observation in ("deep", "multiscale"):
+            env = GridWorldVectorEnv(batch, EnvConfig(size=size, number_obstacles=size * size // 10,
+                                                      observation=observation))
+            env.reset(seed=0)
+            actions = np.random.default_rng(0).integers(0, 4, (256, batch))
+            sps = []
+            for _ in range(repeats):
+                n, t0 = 0, time.perf_counter()
+                while time.perf_counter() - t0 < seconds:
+                    env.step(actions[n % 256])
+                    n += 1
+                sps.append(n * batch / (time.perf_counter() - t0))
+            rows.append(dict(size=size, observation=observation, batch=batch,
+                             agent_steps_per_s=round(float(np.median(sps)))))
+    return rows
+
+
 def map_family_benchmark(size: int = 20, seconds: float = 1.0, batch: int = 64) -> list[dict]:
     """Usable maps/s drawn into the core's pool per map family (size x size, one agent, `batch` maps per draw as
     a reset refills it: family obstacles, start placement and Algorithm 10 included); "random" with 10% obstacles."""
@@ -2071,6 +2195,8 @@ if __name__ == "__main__":
                          "usage: python gridworld.py [--bench]")
     if "--bench" in sys.argv:
         for row in benchmark():
+            print(json.dumps(row), flush=True)
+        for row in observation_benchmark():  # deep vs multiscale, 20x20 and 50x50
             print(json.dumps(row), flush=True)
         for row in map_family_benchmark():
             print(json.dumps(row), flush=True)

@@ -29,7 +29,7 @@ import gridworld  # noqa: E402
 
 SIZES = range(5, 31)  # §6.5.1.1: map sizes 5..30, one subset per size (26 subsets)
 STRUCTURED_SIZES = range(10, 31)  # structured_eval: maps big enough for rooms, passages and maze cells
-NO_COVERAGE = ("structured_eval",)  # stored without covered cells: any prefix of the starts is a clean scenario
+NO_COVERAGE = ("marl_eval", "structured_eval")  # no covered cells stored: any prefix of the starts is a clean scenario
 PICTURE = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "docs", "images",
                        "map_families.png")
 

@@ -1,8 +1,10 @@
-"""Fixtures shared by the trainers' tests."""
+"""Fixtures shared by several test files."""
 import signal
 
+import numpy as np
 import pytest
 
+import classical_cpp as cc
 import gridworld as gw
 
 
@@ -26,3 +28,24 @@ def restore_sigint():
     old = signal.getsignal(signal.SIGINT)
     yield
     signal.signal(signal.SIGINT, old)
+
+
+@pytest.fixture
+def small_report_maps(monkeypatch):
+    """A function cutting the planner report's map subsets to a few small maps (cpp_eval sizes up to `max_size` in
+    two bands, two external episodes on empty-8-8, `layouts` marl_eval layouts), so that a report runs in seconds."""
+    cpp, ext, marl = cc.cpp_eval_subset, cc.external_episodes, cc.marl_eval_subset
+
+    def shrink(max_size: int, layouts: int) -> None:
+        def cpp_subset(per_size):
+            scenarios, sizes = cpp(per_size)
+            keep = np.flatnonzero(sizes <= max_size)
+            return [scenarios[i] for i in keep], sizes[keep]
+
+        monkeypatch.setattr(cc, "cpp_eval_subset", cpp_subset)
+        monkeypatch.setattr(cc, "REPORT_BANDS", ((5, 6), (7, max_size)))
+        monkeypatch.setattr(cc, "external_episodes", lambda: [e for e in ext() if e[0] == "empty-8-8.map"][:2])
+        monkeypatch.setattr(cc, "marl_eval_subset", lambda agents, every=cc.MARL_EVERY: tuple(
+            x[:layouts] for x in marl(agents, every)))
+
+    return shrink

@@ -716,30 +716,13 @@ def test_cli_bad_inputs_are_one_line_errors_and_write_nothing(tmp_path, bad_maps
     assert not out.exists()
 
 
-def _tiny_report_maps(monkeypatch):
-    """The report's map subsets cut to a few small maps (2 per size band, 2 external episodes, 3 layouts), so
-    that `compare` runs in seconds."""
-    cpp, ext, marl = cc.cpp_eval_subset, cc.external_episodes, cc.marl_eval_subset
-
-    def cpp_subset(per_size):
-        scenarios, sizes = cpp(per_size)
-        keep = np.flatnonzero(sizes <= 8)
-        return [scenarios[i] for i in keep], sizes[keep]
-
-    monkeypatch.setattr(cc, "cpp_eval_subset", cpp_subset)
-    monkeypatch.setattr(cc, "REPORT_BANDS", ((5, 6), (7, 8)))
-    monkeypatch.setattr(cc, "external_episodes", lambda: [e for e in ext() if e[0] == "empty-8-8.map"][:2])
-    monkeypatch.setattr(cc, "marl_eval_subset", lambda agents, every=cc.MARL_EVERY: tuple(
-        x[:3] for x in marl(agents, every)))
-
-
 def _hashes(folder: Path) -> dict:
     return {str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
             for p in sorted(folder.rglob("*")) if p.is_file()}
 
 
-def test_report_writes_into_out_only(tmp_path, monkeypatch, capsys):
-    _tiny_report_maps(monkeypatch)
+def test_report_writes_into_out_only(tmp_path, capsys, small_report_maps):
+    small_report_maps(8, 3)
     committed = _hashes(ROOT / "results")
     cc.main(cc.Args(report=True, per_size=1, out=str(tmp_path / "new" / "folder"), quiet=True))
     assert _hashes(ROOT / "results") == committed  # the committed results are left alone

@@ -214,23 +214,12 @@ def _tiny_model(module, path: Path, extra: dict) -> str:
 
 
 @pytest.fixture
-def tiny(tmp_path, monkeypatch):
+def tiny(tmp_path, monkeypatch, small_report_maps):
     """The report's map subsets cut to a few small maps, and tiny models in place of the committed ones."""
     import rainbow_cpp
     import rainbow_marl
     import tabular_q
-    cpp, ext, marl = cc.cpp_eval_subset, cc.external_episodes, cc.marl_eval_subset
-
-    def cpp_subset(per_size):
-        scenarios, sizes = cpp(per_size)
-        keep = np.flatnonzero(sizes <= 7)
-        return [scenarios[i] for i in keep], sizes[keep]
-
-    monkeypatch.setattr(cc, "cpp_eval_subset", cpp_subset)
-    monkeypatch.setattr(cc, "REPORT_BANDS", ((5, 6), (7, 7)))
-    monkeypatch.setattr(cc, "external_episodes", lambda: [e for e in ext() if e[0] == "empty-8-8.map"][:2])
-    monkeypatch.setattr(cc, "marl_eval_subset", lambda agents, every=cc.MARL_EVERY: tuple(
-        x[:2] for x in marl(agents, every)))
+    small_report_maps(7, 2)
     monkeypatch.setattr(report, "MARL_AGENTS", range(1, 3))
     ch5 = np.load(ROOT / "maps" / "ch5_eval.npz")
     keep = np.flatnonzero((ch5["size"] <= 6) & (ch5["requested_obstacles"] <= 2))[::25]
