@@ -16,7 +16,9 @@ with Warnsdorff's tie-break: of the nearest uncovered cells, the one with the fe
 neighbours first; also for several agents), boustrophedon (BA*-style
 back-and-forth with shortest-path repositioning), spiral-stc (Spiral-STC on 2x2 blocks, partly
 blocked blocks kept), wavefront (Zelinsky's distance transform), lkh (the TSP over the
-shortest-path metric closure solved by LKH-3 through elkai: the near-optimal reference).
+shortest-path metric closure solved by LKH-3 through elkai: the near-optimal reference), rollout
+(one-step lookahead: each move finished by a base, greedy-dead-ends by default, the best taken; also
+for several agents, one agent after the other).
 Several agents: greedy (with claims), partition (balanced connected regions, then greedy in
 each), and `lower_bound` = ceil((n_free - N) / N) steps.
 """
@@ -42,7 +44,7 @@ from gridworld import EnvConfig, GridWorldCore, Scenario
 MOVES = ((-1, 0), (1, 0), (0, -1), (0, 1))  # N, S, W, E: the gridworld action order
 LKH_TIME_LIMIT = 10.0  # seconds of LKH search per map (plus reading the problem)
 ROOT = os.path.dirname(os.path.abspath(__file__))
-REPORT_PLANNERS = ("greedy", "boustrophedon", "spiral-stc", "wavefront", "lkh")
+REPORT_PLANNERS = ("greedy", "rollout", "boustrophedon", "spiral-stc", "wavefront", "lkh")
 REPORT_BANDS = ((5, 10), (11, 15), (16, 20), (21, 25), (26, 30))  # the map-size bands --report averages the overlap over
 REPORT_AGENTS = (2, 5, 10)
 MARL_MIN_SIZE, MARL_EVERY = 10, 5  # the multi-agent baselines: every 5th marl_eval layout of sizes 10-30
@@ -545,7 +547,8 @@ class _Rollout:
         self.stats["iterations"] += 1
         self.stats["candidate_steps"] += int(self.run.sum())
         if len(apply):
-            cells = core.agent_cells()[real[apply]]
+            y, x = np.divmod(core.pos[real[apply]] % (core.Ph * core.Pw), core.Pw)
+            cells = np.stack([y - core.c, x - core.c], -1)
             for j, m in enumerate(apply):
                 self.traces[self.maps[m]].append(cells[j])
             self.stats["decisions"] += len(apply)
@@ -967,6 +970,8 @@ def main(args: Args) -> None:
         return
     if args.planner not in PLANNERS:
         raise ValueError(f"unknown planner {args.planner!r}; choose from {sorted(PLANNERS)}")
+    if args.rollout_base not in ROLLOUT_BASES:
+        raise ValueError(f"unknown rollout base {args.rollout_base!r}; choose from {sorted(ROLLOUT_BASES)}")
     if args.out and not os.path.isdir(os.path.dirname(os.path.abspath(args.out))):
         raise ValueError(f"--out {args.out}: no such folder")
     scenarios = load_scenarios(args)
