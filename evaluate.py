@@ -12,7 +12,7 @@ completed, truncated, heuristic_steps) and DIR/summary.json (mean, median, std, 
 overlap, time-save factor and steps, completion rate; overall and by map size) and prints one line
 (mean and median overlap, time-save, completion, the heuristic's share of a learned agent's steps).
 Every metric is counted by gridworld's own environment. Policies: the planners of classical_cpp.py
-(greedy, greedy-dead-ends, boustrophedon, spiral-stc, wavefront, lkh, partition) and the chapter-6
+(greedy, greedy-dead-ends, rollout, boustrophedon, spiral-stc, wavefront, lkh, partition) and the chapter-6
 agent `rainbow` (rainbow_cpp.py; --checkpoint, default models/rainbow_cpp.pt, noise off, heuristic
 fallback unless --no-heuristic), the chapter-7 agents `marl` (rainbow_marl.py; default
 models/rainbow_marl.pt, decentralised: every agent acts on its own observation; --action-loss,
@@ -67,7 +67,7 @@ VIDEO_SECONDS = 30  # long episodes play faster than 10 steps/s so that a video 
 @dataclass
 class Args:
     policy: str = "greedy"
-    """a classical_cpp planner (greedy, greedy-dead-ends, boustrophedon, spiral-stc, wavefront, lkh,
+    """a classical_cpp planner (greedy, greedy-dead-ends, rollout, boustrophedon, spiral-stc, wavefront, lkh,
     partition) or a learned agent (rainbow, marl, tabular)"""
     checkpoint: str | None = None
     """weights / table of a learned agent"""
@@ -421,8 +421,8 @@ def _runner(args: Args, policy: str):
     if policy in LEARNED:
         return {"rainbow": _rainbow, "marl": _marl, "tabular": _tabular}[policy](args)
     if policy in classical_cpp.SINGLE_AGENT and args.agents != 1:
-        raise ValueError(f"{policy} is a single-agent planner; use --agents 1 (or greedy, greedy-dead-ends or "
-                         "partition for several)")
+        raise ValueError(f"{policy} is a single-agent planner; use --agents 1 (or greedy, greedy-dead-ends, "
+                         "rollout or partition for several)")
     return lambda episodes, paths=None: _plan_rows(args, policy, episodes, paths)
 
 

@@ -4,6 +4,7 @@
     python rainbow_cpp.py --stage-steps-scale 0.01 --hidden 256 --num-envs 16    # a short run
     python rainbow_cpp.py --resume --run-name NAME         # continue an interrupted run
     python rainbow_cpp.py --export models/rainbow_cpp.pt   # ship the model (the only way to write models/)
+    python rainbow_cpp.py --network compact --no-cuda --threads 1     # the compact network, on one CPU thread
 
 Double DQN target, prioritized replay (sum tree), dueling streams of factorised-Gaussian noisy
 layers, n-step returns (n = 1 by default), soft target updates every learning period K, and
@@ -11,16 +12,20 @@ the training features of §6.4.2: partial episode bootstrapping, partial resetti
 challenging-episode buffer, imitation of the navigation heuristic and uncommon patterns. Acting
 is batched over `num_envs` worlds of one gridworld core; the replay buffer keeps one compact
 frame per step in a segment per world and rebuilds frame stacks and next states when sampled.
+`--network fig6.8` (the default) reads the 41x41 deep observation; `--network compact` reads the multiscale
+one with grouped convolutions (a group per scale). With `--cuda` (the default, as CleanRL) the networks live
+on the GPU when there is one and every sampled batch goes there in one copy; `--no-cuda` is the CPU path.
 
 Everything a run writes goes under runs/RUN_NAME/ (default `rainbow_cpp__SEED__UNIXTIME`, as CleanRL):
 TensorBoard logs (CleanRL's tags), checkpoint.pt, the deployable weights rainbow_cpp.pt (mean weights, fp16,
 with the frames, hidden width and observation they need) and rainbow_cpp.json beside them (flags, steps,
 provenance: git commit, machine, torch, wall time, date; and the lineage of an --init-from parent), and
 with --capture-video videos/step_N.mp4 of an evaluation episode. --init-from and --resume take the
-network's width and frame stack from the file they load.
+network (kind, widths, frame stack, observation scales) from the file they load.
 """
 from __future__ import annotations
 
+import contextlib
 import datetime
 import hashlib
 import json
@@ -36,6 +41,7 @@ import time
 import warnings
 import zipfile
 from dataclasses import asdict, dataclass, replace
+from typing import Literal
 
 import numpy as np
 import torch
@@ -65,8 +71,16 @@ class Args:
     run_name: str | None = None
     """folder under runs/ for everything the run writes (default: {exp_name}__{seed}__{unix time});
     required with --resume"""
-    torch_threads: int = 0
-    """torch CPU threads (0: torch's default, e.g. from OMP_NUM_THREADS)"""
+    threads: int = 0
+    """torch CPU threads (0: torch's default, e.g. from OMP_NUM_THREADS); the docs' figures are for one"""
+    cuda: bool = True
+    """train and act on the GPU when there is one (as CleanRL); --no-cuda keeps everything on the CPU"""
+    torch_deterministic: bool = True
+    """torch.backends.cudnn.deterministic (as CleanRL); no effect on the CPU"""
+    compile: bool = False
+    """torch.compile the two networks (opt-in: minutes of compiling first; measured in docs/rainbow_cpp.md)"""
+    amp: bool = False
+    """bf16 autocast of the learning forward passes (opt-in; measured in docs/rainbow_cpp.md)"""
     quiet: bool = False
     """no progress bar or periodic step lines (evaluations and the end are still printed)"""
     capture_video: bool = False
@@ -118,7 +132,20 @@ class Args:
     """noisy layers' initial standard deviation"""
     hidden: int | None = None
     """width of the two hidden layers of each dueling stream; default: the model loaded by
-    --init-from or --resume, else 512 (Fig. 6.8)"""
+    --init-from or --resume, else 512 (Fig. 6.8), 256 for --network compact"""
+    network: Literal["fig6.8", "compact"] | None = None
+    """fig6.8: three convolutions over the 41x41 deep observation (Fig. 6.8); compact: grouped convolutions, a
+    group per scale, over the multiscale observation (not in the dissertation); both with dueling noisy
+    streams; default: the model loaded by --init-from or --resume, else fig6.8"""
+    conv_width: int | None = None
+    """compact network: convolution channels per scale; default: the model loaded, else 32"""
+    scales: int | None = None
+    """compact network: scales of the multiscale observation; default: the model loaded, else 3"""
+    scale_factor: int | None = None
+    """compact network: each scale's blocks are this many times wider than the last; default: the model
+    loaded, else 3"""
+    scale_view: int | None = None
+    """compact network: blocks across every scale's window (odd); default: the model loaded, else 11"""
     peb: bool = True
     """partial episode bootstrapping: truncation is not termination (§6.4.2.1)"""
     partial_reset: bool = True
@@ -175,6 +202,10 @@ EXTRAS = LAST_ACTIONS + math.prod(OUT_OF_BOUNDS)  # the vector inputs of one fra
 OUT_OF_BOUNDS_SCALE = gridworld.OUT_OF_BOUNDS_SCALE  # the out-of-bounds counts (eq. 6.5) enter the network scaled
 MOVES = gridworld.WAIT  # the learned actions are the four moves; WAIT is "no action" (§6.3.1)
 DISSERTATION = {"hidden": 512, "frame_stack": 3}  # Fig. 6.8's stream width and §6.3.2.7's frames
+NETWORKS = ("fig6.8", "compact")  # --network: Fig. 6.8 over the deep observation, or the compact one over the multiscale
+SCALE_KEYS = ("scales", "scale_factor", "scale_view")  # the multiscale observation's settings (EnvConfig fields)
+COMPACT = {"hidden": 256, "frame_stack": 3, "conv_width": 32,
+           **{k: getattr(gridworld.EnvConfig(), k) for k in SCALE_KEYS}}  # the compact network's defaults
 CHECKPOINT_KEYS = ("model", "optimizer", "global_step", "stage", "wall", "numpy_rng", "torch_rng")
 UNREADABLE = (OSError, EOFError, RuntimeError, KeyError, IndexError, TypeError, ValueError, AttributeError,
               pickle.UnpicklingError, zipfile.BadZipFile)  # what torch.load of a foreign or truncated file raises
@@ -201,8 +232,8 @@ class NoisyLinear(nn.Module):
 
     def reset_noise(self, on: bool = True):
         if on:
-            self.eps_in.copy_(self._f(torch.randn(self.n_in)))
-            self.eps_out.copy_(self._f(torch.randn(self.n_out)))
+            self.eps_in.copy_(self._f(torch.randn(self.n_in, device=self.eps_in.device)))
+            self.eps_out.copy_(self._f(torch.randn(self.n_out, device=self.eps_out.device)))
         else:
             self.eps_in.zero_()
             self.eps_out.zero_()
@@ -231,9 +262,10 @@ class QNetwork(nn.Module):
                                         NoisyLinear(hidden, MOVES, sigma0)])
 
     def network(self) -> dict:
-        """What a saved copy needs to be rebuilt and fed: frames, hidden width, view, extras, observation kind."""
-        return {"frames": self.frames, "hidden": self.hidden, "view": self.view, "extras": EXTRAS,
-                "observation": "deep"}
+        """What a saved copy needs to be rebuilt and fed: network kind, frames, hidden width, view, extras,
+        observation kind."""
+        return {"network": "fig6.8", "frames": self.frames, "hidden": self.hidden, "view": self.view,
+                "extras": EXTRAS, "observation": "deep"}
 
     def reset_noise(self, on: bool = True):
         for m in self.modules():
@@ -241,31 +273,119 @@ class QNetwork(nn.Module):
                 m.reset_noise(on)
 
     def forward(self, maps, extras):
-        x = torch.cat([self.conv(maps.float() / 255), extras], 1)
+        return dueling(torch.cat([self.conv(maps.float() / 255), extras], 1), self.value, self.advantage)
 
-        def stream(layers):
-            h = x
-            for layer in layers[:-1]:
-                h = F.relu(layer(h))
-            return layers[-1](h)
 
-        advantage = stream(self.advantage)
-        return stream(self.value) + advantage - advantage.mean(1, keepdim=True)  # eq. 6.17
+class CompactQNetwork(nn.Module):
+    """The compact network (not in the dissertation) over the multiscale observation: per scale three 3x3
+    convolutions of `conv_width` channels (the first of stride 2: 11 -> 5 -> 3 -> 1 blocks at scale_view 11),
+    run as grouped convolutions (a group per scale, so scales do not mix before the streams), then Fig. 6.8's
+    dueling noisy streams over the features, the battery and every frame's extras. Stacked frames come
+    frame-major (each frame's scales * 5 channels) and are regrouped scale-major here."""
+
+    def __init__(self, frames: int, hidden: int, sigma0: float, conv_width: int = COMPACT["conv_width"],
+                 scales: int = COMPACT["scales"], scale_factor: int = COMPACT["scale_factor"],
+                 scale_view: int = COMPACT["scale_view"]):
+        super().__init__()
+        self.frames, self.hidden, self.conv_width = frames, hidden, conv_width
+        self.scales, self.scale_factor, self.scale_view = scales, scale_factor, scale_view
+        self.view = scale_view
+        channels, _ = frame_shape({"observation": "multiscale", "scales": scales, "scale_factor": scale_factor,
+                                   "scale_view": scale_view})
+        self.per_scale = channels // scales
+        layers, n_in, size = [], channels * frames, scale_view
+        for i in range(3):  # stride 2 first while the window allows; no padding while a 3x3 fits
+            stride = 2 if i == 0 and size >= 7 else 1
+            pad = 0 if size >= 3 else 1
+            layers += [nn.Conv2d(n_in, scales * conv_width, 3, stride, pad, groups=scales), nn.ReLU()]
+            n_in, size = scales * conv_width, (size + 2 * pad - 3) // stride + 1
+        self.conv = nn.Sequential(*layers, nn.Flatten())
+        n_in = scales * conv_width * size * size + 1 + frames * EXTRAS
+        self.value = nn.ModuleList([NoisyLinear(n_in, hidden, sigma0), NoisyLinear(hidden, hidden, sigma0),
+                                    NoisyLinear(hidden, 1, sigma0)])
+        self.advantage = nn.ModuleList([NoisyLinear(n_in, hidden, sigma0), NoisyLinear(hidden, hidden, sigma0),
+                                        NoisyLinear(hidden, MOVES, sigma0)])
+
+    def network(self) -> dict:
+        """What a saved copy needs to be rebuilt and fed (QNetwork.network's keys plus the conv width and the
+        multiscale settings)."""
+        return {"network": "compact", "frames": self.frames, "hidden": self.hidden, "conv_width": self.conv_width,
+                "view": self.view, "extras": EXTRAS, "observation": "multiscale", "scales": self.scales,
+                "scale_factor": self.scale_factor, "scale_view": self.scale_view}
+
+    def reset_noise(self, on: bool = True):
+        for m in self.modules():
+            if isinstance(m, NoisyLinear):
+                m.reset_noise(on)
+
+    def forward(self, maps, extras):
+        n, v = maps.shape[0], maps.shape[-1]
+        x = maps.reshape(n, self.frames, self.scales, self.per_scale, v, v).transpose(1, 2).reshape(n, -1, v, v)
+        return dueling(torch.cat([self.conv(x.float() / 255), extras], 1), self.value, self.advantage)
+
+
+def dueling(x: torch.Tensor, value: nn.ModuleList, advantage: nn.ModuleList) -> torch.Tensor:
+    """Q of the four moves from the value and advantage streams over the features x (eq. 6.17)."""
+    def stream(layers):
+        h = x
+        for layer in layers[:-1]:
+            h = F.relu(layer(h))
+        return layers[-1](h)
+
+    a = stream(advantage)
+    return stream(value) + a - a.mean(1, keepdim=True)
+
+
+def build_network(spec: dict, sigma0: float) -> nn.Module:
+    """The network a spec describes (network_of's, or a network() record): Fig. 6.8's or the compact one."""
+    if spec.get("network", "fig6.8") == "fig6.8":
+        return QNetwork(spec["frames"], spec["view"], spec["hidden"], sigma0)
+    return CompactQNetwork(spec["frames"], spec["hidden"], sigma0, spec["conv_width"],
+                           *(spec[k] for k in SCALE_KEYS))
+
+
+def observation_settings(spec: dict) -> dict:
+    """The EnvConfig fields of the observation a network needs, from its spec (a network() record, network_of's,
+    or a run's flags as a dict): {"observation": "deep"}, or multiscale with its scales."""
+    if spec.get("network", "fig6.8") == "fig6.8":
+        return {"observation": "deep"}
+    return {"observation": "multiscale", **{k: spec[k] for k in SCALE_KEYS}}
+
+
+def frame_shape(observation: dict) -> tuple[int, int]:
+    """(channels, view) of one map frame of an observation (observation_settings' fields), from gridworld."""
+    shape = gridworld.agent_observation_space(gridworld.EnvConfig(**observation))["map"].shape
+    return shape[0], shape[-1]
+
+
+def device_of(q: nn.Module) -> torch.device:
+    """Where a network's weights live (the CPU for one without any)."""
+    return next(q.parameters(), torch.empty(0)).device
+
+
+def autocast(on: bool, device: torch.device):
+    """bf16 autocast of the forward passes (--amp), or nothing at all."""
+    return torch.autocast(device.type, dtype=torch.bfloat16) if on else contextlib.nullcontext()
 
 
 # ----------------------------------------------------------------------------- replay memory
 class SumTree:
-    """Priorities in a binary tree: sampling proportional to priority and updates in O(log n)."""
+    """Priorities in a binary tree: sampling proportional to priority and updates in O(log n); `valid` counts
+    the leaves above zero (kept as they change: counting them is O(capacity))."""
 
     def __init__(self, capacity: int):
         self.size = 1 << max(1, (capacity - 1).bit_length())
         self.tree = np.zeros(2 * self.size)
+        self.valid = 0
 
     def update(self, idx: np.ndarray, priority: np.ndarray) -> None:
         node = np.asarray(idx, np.int64) + self.size
         if node.size == 0:
             return
+        leaves = np.unique(node)  # an index given twice counts once (its last priority is kept)
+        before = np.count_nonzero(self.tree[leaves] > 0)
         self.tree[node] = priority
+        self.valid += np.count_nonzero(self.tree[leaves] > 0) - before
         node = np.unique(node // 2)
         while node[0] >= 1:
             self.tree[node] = self.tree[2 * node] + self.tree[2 * node + 1]
@@ -290,16 +410,22 @@ class SumTree:
 
 class Replay:
     """One compact frame per step in a ring segment per stream (a world, or one agent of a world), so stacks
-    and next states are neighbouring slots of the same stream. A frame: the map bit-packed (841 bytes for
-    4x41x41) plus the four compressed edge lines raw, out-of-bounds, last action and battery."""
+    and next states are neighbouring slots of the same stream. A frame of the deep observation: the map
+    bit-packed (841 bytes for 4x41x41) plus the four compressed edge lines raw, out-of-bounds, last action and
+    battery; with `channels` (the multiscale observation, whose block means are not binary) the map is kept as
+    it is, uint8 (1,815 bytes for 15x11x11)."""
 
     def __init__(self, capacity: int, worlds: int, view: int, frames: int, n_step: int, gamma: float,
-                 alpha: float):
+                 alpha: float, channels: int | None = None):
         self.cap, self.worlds, self.V, self.k = capacity // worlds, worlds, view, frames
         self.n_step, self.gamma, self.alpha = n_step, gamma, alpha
+        self.C, self.packed = channels or CHANNELS, channels is None
         size = self.cap * worlds
-        self.bits = np.zeros((size, (CHANNELS * view * view + 7) // 8), np.uint8)
-        self.edges = np.zeros((size, 4, CHANNELS, view), np.uint8)  # rows 1, V-2 and cols 1, V-2
+        if self.packed:
+            self.bits = np.zeros((size, (CHANNELS * view * view + 7) // 8), np.uint8)
+            self.edges = np.zeros((size, 4, CHANNELS, view), np.uint8)  # rows 1, V-2 and cols 1, V-2
+        else:
+            self.maps = np.zeros((size, channels, view, view), np.uint8)
         self.oob = np.zeros((size, *OUT_OF_BOUNDS), np.float16)
         self.last = np.zeros(size, np.int8)
         self.battery = np.zeros(size, np.float16)
@@ -313,22 +439,27 @@ class Replay:
         self.filled = np.zeros(worlds, np.int64)
         self.tree = SumTree(size)
         self.max_priority = 1.0
+        self.pinned: torch.Tensor | None = None  # the host side of batch()'s one copy to a GPU
 
     def bytes_per_transition(self) -> int:
+        maps = (self.bits, self.edges) if self.packed else (self.maps,)
         return sum(a.itemsize * int(np.prod(a.shape[1:])) for a in
-                   (self.bits, self.edges, self.oob, self.last, self.battery, self.action, self.label,
+                   (*maps, self.oob, self.last, self.battery, self.action, self.label,
                     self.reward, self.terminal, self.final, self.age)) + 16  # + sum-tree leaf
 
     def add_frames(self, worlds: np.ndarray, obs: dict, age: np.ndarray, final: np.ndarray) -> np.ndarray:
         """Write the current frame of each stream; returns the slots written."""
         slot = worlds * self.cap + self.pointer[worlds]
         maps = obs["map"]
-        self.bits[slot] = np.packbits((maps > 0).reshape(len(slot), -1), axis=1)
-        V = self.V
-        self.edges[slot, :, 0] = maps[:, :, 1]
-        self.edges[slot, :, 1] = maps[:, :, V - 2]
-        self.edges[slot, :, 2] = maps[:, :, :, 1]
-        self.edges[slot, :, 3] = maps[:, :, :, V - 2]
+        if self.packed:
+            self.bits[slot] = np.packbits((maps > 0).reshape(len(slot), -1), axis=1)
+            V = self.V
+            self.edges[slot, :, 0] = maps[:, :, 1]
+            self.edges[slot, :, 1] = maps[:, :, V - 2]
+            self.edges[slot, :, 2] = maps[:, :, :, 1]
+            self.edges[slot, :, 3] = maps[:, :, :, V - 2]
+        else:
+            self.maps[slot] = maps
         self.oob[slot] = obs["out_of_bounds"]
         self.last[slot] = obs["last_action"].argmax(1)
         self.battery[slot] = obs["battery"][:, 0]
@@ -350,25 +481,29 @@ class Replay:
         self.label[slot] = -1 if label is None else np.where(label < MOVES, label, -1)  # WAIT is no move to learn
 
     def _frames(self, slot: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Stacked maps (n, 4k, V, V) uint8 and extras (n, 1 + 13k) for frames ending at slot."""
+        """Stacked maps (n, Ck, V, V) uint8 (C = 4 channels a deep frame) and extras (n, 1 + 13k) for frames
+        ending at slot."""
         V, k = self.V, self.k
         base, pos = slot // self.cap * self.cap, slot % self.cap
         back = np.minimum(self.age[slot][:, None], np.arange(k - 1, -1, -1))  # stay in the episode
         frames = base[:, None] + (pos[:, None] - back) % self.cap  # (n, k) oldest first
         flat = frames.ravel()
-        maps = np.unpackbits(self.bits[flat], axis=1, count=CHANNELS * V * V).reshape(-1, CHANNELS, V, V) * np.uint8(255)
-        maps[:, :, 1], maps[:, :, V - 2] = self.edges[flat, :, 0], self.edges[flat, :, 1]
-        maps[:, :, :, 1], maps[:, :, :, V - 2] = self.edges[flat, :, 2], self.edges[flat, :, 3]
+        if self.packed:
+            maps = np.unpackbits(self.bits[flat], axis=1, count=CHANNELS * V * V).reshape(-1, CHANNELS, V, V) * np.uint8(255)
+            maps[:, :, 1], maps[:, :, V - 2] = self.edges[flat, :, 0], self.edges[flat, :, 1]
+            maps[:, :, :, 1], maps[:, :, :, V - 2] = self.edges[flat, :, 2], self.edges[flat, :, 3]
+        else:
+            maps = self.maps[flat]
         last = np.eye(LAST_ACTIONS, dtype=np.float32)[self.last[flat]]
         oob = self.oob[flat].astype(np.float32).reshape(len(flat), -1) / OUT_OF_BOUNDS_SCALE
         extras = np.concatenate([self.battery[slot].astype(np.float32)[:, None],
                                  np.concatenate([last, oob], 1).reshape(len(slot), -1)], 1)
-        return maps.reshape(len(slot), CHANNELS * k, V, V), extras
+        return maps.reshape(len(slot), self.C * k, V, V), extras
 
     def sample(self, n: int, beta: float, rng: np.random.Generator):
         slot = self.tree.sample(n, rng)
         probs = self.tree.tree[slot + self.tree.size] / self.tree.total()
-        valid = (self.tree.tree[self.tree.size:] > 0).sum()
+        valid = self.tree.valid
         weights = (valid * np.maximum(probs, 1e-12)) ** -beta
         ret = np.zeros(n, np.float32)
         discount = np.ones(n, np.float32)
@@ -392,10 +527,43 @@ class Replay:
         next_obs = self._frames(nxt)
         return slot, obs, self.action[slot].astype(np.int64), ret, next_obs, bootstrap, weights / weights.max()
 
+    def batch(self, n: int, beta: float, rng: np.random.Generator, device: torch.device,
+              labels: bool = False) -> tuple[np.ndarray, list[torch.Tensor]]:
+        """sample() as tensors on `device`: the slots, then [maps, extras, next maps, next extras, actions,
+        returns, bootstrap factors, importance weights (float32)] and with `labels` the heuristic's actions
+        (int64, -1: none). One copy to a GPU per batch (hand_over); on the CPU the sampled arrays themselves."""
+        slot, (m, e), a, ret, (nm, ne), boot, weight = self.sample(n, beta, rng)
+        arrays = [m, e, nm, ne, a, ret, boot, weight.astype(np.float32)]
+        if labels:
+            arrays.append(self.label[slot].astype(np.int64))
+        tensors, self.pinned = hand_over(arrays, device, self.pinned)
+        return slot, tensors
+
     def update_priorities(self, slot: np.ndarray, td: np.ndarray) -> None:
         priority = np.abs(td) + 1e-6
         self.max_priority = max(self.max_priority, float(priority.max()))
         self.tree.update(slot, priority ** self.alpha)
+
+
+def hand_over(arrays: list[np.ndarray], device: torch.device, pinned: torch.Tensor | None = None,
+              pack: bool | None = None) -> tuple[list[torch.Tensor], torch.Tensor | None]:
+    """The arrays as tensors on `device`. On the CPU they are used as they are (no copy); off it (or with
+    `pack`) they are packed into one host buffer, 8-byte aligned slices, moved in one non-blocking copy and
+    split there into views. The buffer (`pinned`: page-locked for CUDA) is kept between calls and grown when
+    short; reusing it is safe because every update reads its TD errors back to the host, a sync, before the
+    next batch is packed. Returns the tensors and the buffer to pass next time."""
+    if not (device.type != "cpu" if pack is None else pack):
+        return [torch.from_numpy(np.ascontiguousarray(x)) for x in arrays], pinned
+    sizes = [-(-x.nbytes // 8) * 8 for x in arrays]
+    starts = [0, *np.cumsum(sizes).tolist()]
+    if pinned is None or pinned.numel() < starts[-1]:
+        pinned = torch.empty(starts[-1], dtype=torch.uint8, pin_memory=device.type == "cuda")
+    host = pinned.numpy()
+    for x, start in zip(arrays, starts):
+        host[start:start + x.nbytes] = np.ascontiguousarray(x).reshape(-1).view(np.uint8)
+    moved = pinned[:starts[-1]].to(device, non_blocking=True)
+    return [moved[start:start + x.nbytes].view(torch.from_numpy(x[:0].reshape(-1)).dtype).view(x.shape)
+            for x, start in zip(arrays, starts)], pinned
 
 
 # ----------------------------------------------------------------------------- acting and learning
@@ -403,8 +571,8 @@ class Stacker:
     """The last k frames of every stream (a world, or one agent of a world), for acting (the replay rebuilds
     its own)."""
 
-    def __init__(self, streams: int, k: int, view: int):
-        self.maps = np.zeros((streams, k, CHANNELS, view, view), np.uint8)
+    def __init__(self, streams: int, k: int, view: int, channels: int = CHANNELS):
+        self.maps = np.zeros((streams, k, channels, view, view), np.uint8)
         self.extra = np.zeros((streams, k, EXTRAS), np.float32)
         self.battery = np.zeros((streams, 1), np.float32)
 
@@ -428,8 +596,12 @@ def observe(core: gridworld.GridWorldCore) -> dict:
     return {k: v.reshape(-1, *v.shape[2:]) for k, v in core.observe().items()}
 
 
-def to_torch(maps: np.ndarray, extras: np.ndarray):
-    return torch.from_numpy(np.ascontiguousarray(maps)), torch.from_numpy(extras)
+def to_torch(maps: np.ndarray, extras: np.ndarray, device: torch.device | None = None):
+    """A stack's maps and extras as tensors, on `device` (default: the CPU, without a copy)."""
+    maps, extras = torch.from_numpy(np.ascontiguousarray(maps)), torch.from_numpy(extras)
+    if device is None or device.type == "cpu":
+        return maps, extras
+    return maps.to(device, non_blocking=True), extras.to(device, non_blocking=True)
 
 
 def stuck(since_new: np.ndarray, moved: np.ndarray, size: np.ndarray) -> np.ndarray:
@@ -449,26 +621,29 @@ def large_margin_loss(q_all: torch.Tensor, label: torch.Tensor, margin: float) -
 
 def learn(q: QNetwork, target: QNetwork, optimizer: torch.optim.Optimizer, replay: Replay, args: Args,
           beta: float, rng: np.random.Generator) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
-    """One gradient step on a prioritized batch: the double-DQN TD loss (plus the margin loss), new
-    priorities, the soft target update (eq. 6.19) and fresh noise. Returns the TD loss, the mean Q(s, a)
-    and the margin loss (None without one), detached."""
-    idx, (m_, e_), a_, ret, (nm, ne), boot, weight = replay.sample(args.batch_size, beta, rng)
-    m_, e_, nm, ne = (torch.from_numpy(np.ascontiguousarray(x)) for x in (m_, e_, nm, ne))
-    with torch.no_grad():  # double DQN: the online net picks, the target net values
+    """One gradient step on a prioritized batch, on the networks' device (the batch handed over in one copy):
+    the double-DQN TD loss (plus the margin loss), new priorities, the soft target update (eq. 6.19) and
+    fresh noise; with --amp the forward passes run under bf16 autocast, the losses in float32. Returns the TD
+    loss, the mean Q(s, a) and the margin loss (None without one), detached."""
+    device = device_of(q)
+    idx, (m_, e_, nm, ne, a_, ret, boot, weight, *label) = replay.batch(args.batch_size, beta, rng, device,
+                                                                        labels=bool(args.margin_loss))
+    with torch.no_grad(), autocast(args.amp, device):  # double DQN: the online net picks, the target net values
         best = q(nm, ne).argmax(1, keepdim=True)
-        y = torch.from_numpy(ret) + torch.from_numpy(boot) * target(nm, ne).gather(1, best)[:, 0]
-    q_all = q(m_, e_)
-    q_sa = q_all.gather(1, torch.from_numpy(a_)[:, None])[:, 0]
-    td_loss = (torch.from_numpy(weight.astype(np.float32)) * F.smooth_l1_loss(q_sa, y, reduction="none")).mean()
+        y = ret + boot * target(nm, ne).float().gather(1, best)[:, 0]
+    with autocast(args.amp, device):
+        q_all = q(m_, e_).float()
+    q_sa = q_all.gather(1, a_[:, None])[:, 0]
+    td_loss = (weight * F.smooth_l1_loss(q_sa, y, reduction="none")).mean()
     loss, margin_loss = td_loss, None
     if args.margin_loss:
-        margin_loss = large_margin_loss(q_all, torch.from_numpy(replay.label[idx].astype(np.int64)), args.margin)
+        margin_loss = large_margin_loss(q_all, label[0], args.margin)
         loss = loss + args.margin_loss * margin_loss
     optimizer.zero_grad()
     loss.backward()
     nn.utils.clip_grad_norm_(q.parameters(), args.max_grad_norm)
     optimizer.step()
-    replay.update_priorities(idx, (y - q_sa).detach().numpy())
+    replay.update_priorities(idx, (y - q_sa).detach().cpu().numpy())
     with torch.no_grad():  # eq. 6.19
         for p, tp in zip(q.parameters(), target.parameters()):
             tp.lerp_(p, args.tau)
@@ -478,12 +653,13 @@ def learn(q: QNetwork, target: QNetwork, optimizer: torch.optim.Optimizer, repla
 
 
 # ----------------------------------------------------------------------------- evaluation
-def eval_config(scenarios: list, sensor: str = "full", sensor_range: int = 3,
-                sensor_failure: float = 0.0) -> gridworld.EnvConfig:
+def eval_config(scenarios: list, sensor: str = "full", sensor_range: int = 3, sensor_failure: float = 0.0,
+                observation: dict | None = None) -> gridworld.EnvConfig:
     """Worlds that replay the given scenarios as they are (maps, starts, coverage), as many agents as the
-    most starts."""
+    most starts, observed as `observation` says (observation_settings' fields; default: deep)."""
     return gridworld.EnvConfig(load_state=True, load_random=False, sensor=sensor, sensor_range=sensor_range,
-                               sensor_failure=sensor_failure, number_agents=max(len(s.starts) for s in scenarios))
+                               sensor_failure=sensor_failure, number_agents=max(len(s.starts) for s in scenarios),
+                               **(observation or {}))
 
 
 def heuristic_baseline(config: gridworld.EnvConfig, scenarios: list, random_ties: bool,
@@ -534,7 +710,7 @@ def write_json(path: str, data: dict) -> None:
 def export(q: QNetwork, args: Args, info: dict) -> None:
     """Deployable weights at args.export: the noisy layers' means only, fp16, with what the network needs;
     beside them a JSON of the flags, the network and `info` (steps, provenance, parent model)."""
-    weights = {k: v.half() for k, v in q.state_dict().items() if "sigma" not in k and "eps" not in k}
+    weights = {k: v.cpu().half() for k, v in q.state_dict().items() if "sigma" not in k and "eps" not in k}
     save_checkpoint(args.export, {"weights": weights, **q.network()})
     write_json(os.path.splitext(args.export)[0] + ".json", {"args": asdict(args), "network": q.network(), **info})
 
@@ -564,24 +740,33 @@ def read_model(path: str) -> dict:
 
 
 def network_of(blob: dict, path: str) -> dict:
-    """The network a saved file needs (QNetwork.network(); older files record frames and hidden only, older
-    checkpoints only their flags), checked against the observation gridworld gives."""
+    """The network a saved file needs (its network() record; older files record frames and hidden only, older
+    checkpoints only their flags, and both are Fig. 6.8's), checked against the observation gridworld gives."""
     flags = blob["args"] if isinstance(blob.get("args"), dict) else {}
-    spec = {"frames": blob.get("frames", flags.get("frame_stack")), "hidden": blob.get("hidden", flags.get("hidden")),
-            "view": blob.get("view", VIEW), "extras": blob.get("extras", EXTRAS),
-            "observation": blob.get("observation", "deep")}
-    if not all(isinstance(spec[k], int) and spec[k] >= 1 for k in ("frames", "hidden", "view", "extras")):
+    kind = blob.get("network", flags.get("network") or "fig6.8")
+    if kind not in NETWORKS:
+        raise ValueError(f"{path}: a {kind!r} network; the trainers build {' and '.join(NETWORKS)}")
+    spec = {"network": kind, "frames": blob.get("frames", flags.get("frame_stack")),
+            "hidden": blob.get("hidden", flags.get("hidden")), "extras": blob.get("extras", EXTRAS)}
+    if kind == "compact":
+        spec |= {k: blob.get(k, flags.get(k)) for k in ("conv_width", *SCALE_KEYS)}
+        spec |= {"view": blob.get("view", spec["scale_view"]), "observation": blob.get("observation", "multiscale")}
+    else:
+        spec |= {"view": blob.get("view", VIEW), "observation": blob.get("observation", "deep")}
+    if not all(isinstance(v, int) and v >= 1 for k, v in spec.items() if k not in ("network", "observation")):
         raise ValueError(f"{path}: not a rainbow_cpp / rainbow_marl model (no frame count or hidden width)")
-    if (spec["observation"], spec["view"], spec["extras"]) != ("deep", VIEW, EXTRAS):
-        raise ValueError(f"{path}: a network for the {spec['observation']} observation, view {spec['view']}, "
-                         f"{spec['extras']} extras a frame; gridworld observes deep, view {VIEW}, {EXTRAS} extras")
+    expected = ("deep", VIEW) if kind == "fig6.8" else ("multiscale", spec["scale_view"])
+    if (spec["observation"], spec["view"], spec["extras"]) != (*expected, EXTRAS):
+        raise ValueError(f"{path}: a {kind} network for the {spec['observation']} observation, view {spec['view']}, "
+                         f"{spec['extras']} extras a frame; gridworld gives it {expected[0]}, view {expected[1]}, "
+                         f"{EXTRAS} extras")
     return spec
 
 
 def policy_from(blob: dict, path: str) -> QNetwork:
     """The network of a file read by read_model, with its mean weights and noise off."""
     spec = network_of(blob, path)
-    q = QNetwork(spec["frames"], spec["view"], spec["hidden"], 0.0)
+    q = build_network(spec, 0.0)
     try:
         missing, unexpected = q.load_state_dict({k: v.float() for k, v in blob.get("weights", blob.get("model")).items()},
                                                 strict=False)
@@ -615,10 +800,12 @@ def check_flags(args: Args) -> None:
     """The flags both trainers share: a count or a chance out of range is a one-line error."""
     for name, least in (("total_steps", 0), ("num_envs", 1), ("buffer_size", 1), ("batch_size", 1),
                         ("learning_starts", 0), ("demonstration_steps", 0), ("n_step", 1), ("challenging_size", 1),
-                        ("eval_every", 0), ("eval_maps", 1), ("save_every", 0), ("torch_threads", 0)):
+                        ("eval_every", 0), ("eval_maps", 1), ("save_every", 0), ("threads", 0)):
         if getattr(args, name) < least:
             raise ValueError(f"--{name.replace('_', '-')} must be >= {least}, got {getattr(args, name)}")
-    for name in ("hidden", "frame_stack"):
+    if args.network is not None and args.network not in NETWORKS:
+        raise ValueError(f"--network must be one of {', '.join(NETWORKS)}, got {args.network!r}")
+    for name in ("hidden", "frame_stack", "conv_width", *SCALE_KEYS):
         if getattr(args, name) is not None and getattr(args, name) < 1:
             raise ValueError(f"--{name.replace('_', '-')} must be >= 1, got {getattr(args, name)}")
     for name in ("challenging", "imitation", "gamma", "tau", "beta_start"):
@@ -640,15 +827,40 @@ def run_name_of(args: Args) -> str:
 
 
 def with_network(args: Args, model: dict | None, source: str | None) -> Args:
-    """--hidden and --frame-stack: from the model loaded (a flag that contradicts it is an error), else as
-    given, else the dissertation's."""
-    chosen = {}
-    for flag, key in (("hidden", "hidden"), ("frame_stack", "frames")):
-        given, loaded = getattr(args, flag), None if model is None else model[key]
+    """--network, --hidden, --frame-stack and the compact network's --conv-width and observation scales: from
+    the model loaded (a flag that contradicts it is an error), else as given, else the defaults (Fig. 6.8 with
+    the dissertation's width and frames; the compact network's COMPACT). A scale flag for Fig. 6.8, or scales
+    gridworld refuses, is an error too."""
+    def pick(flag, key, default=None):
+        given, loaded = getattr(args, flag), None if model is None else model.get(key, default)
         if given is not None and loaded is not None and given != loaded:
             raise ValueError(f"--{flag.replace('_', '-')} {given} contradicts {source} ({flag.replace('_', ' ')} {loaded})")
-        chosen[flag] = next(v for v in (loaded, given, DISSERTATION[flag]) if v is not None)
+        return loaded if loaded is not None else given
+
+    network = pick("network", "network", "fig6.8") or "fig6.8"
+    defaults = DISSERTATION if network == "fig6.8" else COMPACT
+    stray = [k for k in ("conv_width", *SCALE_KEYS) if k not in defaults and getattr(args, k) is not None]
+    if stray:
+        raise ValueError(f"--{stray[0].replace('_', '-')} is for --network compact, not {network}")
+    chosen = {"network": network}
+    for flag in defaults:
+        value = pick(flag, "frames" if flag == "frame_stack" else flag)
+        chosen[flag] = defaults[flag] if value is None else value
+    if network == "compact":
+        gridworld.EnvConfig(**observation_settings(chosen)).validate()
     return replace(args, **chosen)
+
+
+def observed(stages: list[gridworld.EnvConfig], args: Args) -> list[gridworld.EnvConfig]:
+    """The stages observed as the run's network needs (observation_settings: the compact network's multiscale
+    observation with the run's scales); a stage that asks for another observation is an error."""
+    want, out = observation_settings(asdict(args)), []
+    for s in stages:
+        have = {k: getattr(s, k) for k in want}
+        if have != want and s.observation != "deep":
+            raise ValueError(f"stage {s.name}: observation {have} but the {args.network} network needs {want}")
+        out.append(s if have == want else s.replace(**want))
+    return out
 
 
 def lineage(path: str | None) -> dict | None:
@@ -693,22 +905,25 @@ def host() -> dict:
             "cores": os.cpu_count(), "torch_version": torch.__version__, "python": platform.python_version()}
 
 
-def seed_everything(seed: int, threads: int) -> np.random.Generator:
-    """CleanRL's seeding (random, torch) and torch's CPU threads (0: its default); the run's numpy generator."""
+def seed_everything(seed: int, threads: int, deterministic: bool = True) -> np.random.Generator:
+    """CleanRL's seeding (random, torch; cudnn deterministic) and torch's CPU threads (0: its default); the
+    run's numpy generator."""
     random.seed(seed)
     torch.manual_seed(seed)
+    torch.backends.cudnn.deterministic = deterministic
     if threads:
         torch.set_num_threads(threads)
     return np.random.default_rng(seed)
 
 
 def start_run(args: Args, n_stages: int) -> tuple:
-    """Seeding, the run folder, the networks and the optimizer, from the checkpoint resumed or the model warm
-    started from. The network's width and frame stack come from that file (a flag contradicting it is an
-    error), else from the flags, else the dissertation's. Only reads: every bad file or flag is a ValueError
-    before anything is written. Returns (args with every default filled in, run folder, online and target
-    networks, optimizer, numpy generator, (global_step, stage index, wall seconds), the parent's lineage)."""
-    rng = seed_everything(args.seed, args.torch_threads)
+    """Seeding, the run folder, the networks (on the GPU with --cuda when there is one) and the optimizer, from
+    the checkpoint resumed or the model warm started from. The network, its widths, frame stack and
+    observation come from that file (a flag contradicting it is an error), else from the flags, else the
+    defaults (with_network). Only reads: every bad file or flag is a ValueError before anything is written.
+    Returns (args with every default filled in, run folder, online and target networks, optimizer, numpy
+    generator, (global_step, stage index, wall seconds), the parent's lineage)."""
+    rng = seed_everything(args.seed, args.threads, args.torch_deterministic)
     run_name = run_name_of(args)
     run_dir = os.path.join("runs", run_name)
     checkpoint = os.path.join(run_dir, "checkpoint.pt")
@@ -719,8 +934,9 @@ def start_run(args: Args, n_stages: int) -> tuple:
     else:
         args = with_network(args, None if warm is None else network_of(warm, args.init_from), args.init_from)
     args = replace(args, run_name=run_name, export=args.export or os.path.join(run_dir, f"{SCRIPT}.pt"))
-    q = QNetwork(args.frame_stack, VIEW, args.hidden, args.sigma0)
-    target = QNetwork(args.frame_stack, VIEW, args.hidden, args.sigma0)
+    device = torch.device("cuda" if args.cuda and torch.cuda.is_available() else "cpu")
+    spec = {**asdict(args), "frames": args.frame_stack, "view": VIEW}
+    q, target = (build_network(spec, args.sigma0).to(device) for _ in range(2))
     optimizer = torch.optim.Adam(q.parameters(), lr=args.learning_rate, eps=args.adam_eps,
                                  fused=True)  # fused: ~7x faster than the per-tensor loop on CPU
     progress, parent = (0, 0, 0.0), None
@@ -741,6 +957,9 @@ def start_run(args: Args, n_stages: int) -> tuple:
             k: v for k, v in q.state_dict().items() if "sigma" in k or "eps" in k})
         parent = lineage(args.init_from)
     target.load_state_dict(q.state_dict())
+    if args.compile:
+        q.compile()
+        target.compile()
     return args, run_dir, q, target, optimizer, rng, progress, parent
 
 
@@ -757,7 +976,8 @@ def save_run(run_dir: str, q: QNetwork, optimizer: torch.optim.Optimizer, args: 
     export(q, args, {
         "global_step": global_step, "stage": stage_name, "wall_seconds": round(wall),
         "machine": f"{machine['cores']}-core {machine['cpu']}, {threads} torch thread(s)", "torch_threads": threads,
-        "provenance": {**machine, "torch_threads": threads, "env_steps": global_step, "wall_seconds": round(wall, 1),
+        "provenance": {**machine, "torch_threads": threads, "device": str(device_of(q)), "env_steps": global_step,
+                       "wall_seconds": round(wall, 1),
                        "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")},
         "parent": parent})
 
@@ -805,12 +1025,17 @@ def evaluate_policy(q: QNetwork, scenarios: list, frames: int, sensor: str = "fu
     in this episode, so a policy that keeps falling into loops still finishes the map.
     Returns per-episode arrays: gridworld's metrics, `truncated` and `heuristic_steps`. A list
     given as `trajectories` is extended with one (T + 1, 1, 2) int array per scenario: the agent's
-    (row, col) at every step from the start, T that episode's own steps."""
-    core = gridworld.GridWorldCore(eval_config(scenarios, sensor, sensor_range, sensor_failure), len(scenarios))
+    (row, col) at every step from the start, T that episode's own steps. The observation and the frame
+    count are the network's own (q.network(), on its device); `frames` counts only for a network without
+    that record."""
+    spec = q.network() if hasattr(q, "network") else {"frames": frames}
+    observation, frames, device = observation_settings(spec), spec["frames"], device_of(q)
+    core = gridworld.GridWorldCore(eval_config(scenarios, sensor, sensor_range, sensor_failure, observation),
+                                   len(scenarios))
     core.configure(scenarios=scenarios)
     core.reset()
     n = len(scenarios)
-    stack = Stacker(n, frames, core.V)
+    stack = Stacker(n, frames, *frame_shape(observation)[::-1])
     stack.push(observe(core), np.ones(n, bool))
     done, truncated = np.zeros(n, bool), np.zeros(n, bool)
     since_new, used = np.zeros(n, np.int64), np.zeros(n, np.int64)
@@ -824,7 +1049,7 @@ def evaluate_policy(q: QNetwork, scenarios: list, frames: int, sensor: str = "fu
             active = np.flatnonzero(~done)  # finished worlds cost no forward pass
             maps, extras = stack.get()
             action = np.full(n, gridworld.WAIT)
-            action[active] = q(*to_torch(maps[active], extras[active])).argmax(1).numpy()
+            action[active] = q(*to_torch(maps[active], extras[active], device)).argmax(1).cpu().numpy()
             if heuristic:
                 moved = np.abs(core.agent_cells()[:, 0] - history[0]).sum(1)
                 now_stuck = stuck(since_new, moved, core.hw.max(1)) & ~done & (owed == 0)
@@ -862,6 +1087,9 @@ def main(args: Args) -> None:
         raise ValueError(f"--buffer-size {args.buffer_size}: need buffer_size >= 64 * num_envs")
     eval_set = gridworld.load_dataset(os.path.join(HERE, "maps", "cpp_eval.npz"))
     args, run_dir, q, target, optimizer, rng, (global_step, stage_index, wall), parent = start_run(args, len(stages))
+    stages, device = observed(stages, args), device_of(q)  # the stages observed as the network needs
+    observation = observation_settings(asdict(args))
+    channels, view = frame_shape(observation)
     machine = host()
     ends = np.cumsum([max(1, int(s.base_steps * args.stage_steps_scale)) for s in stages])
     total = int(min(ends[-1], args.total_steps or ends[-1]))
@@ -869,8 +1097,9 @@ def main(args: Args) -> None:
     # env setup
     core = gridworld.GridWorldCore(stage_config(stages[stage_index], args), args.num_envs, seed=args.seed + global_step)
     B = args.num_envs
-    replay = Replay(args.buffer_size, B, core.V, args.frame_stack, args.n_step, args.gamma, args.alpha)
-    print(f"{run_dir}: replay {replay.bytes_per_transition()} bytes per transition, "
+    replay = Replay(args.buffer_size, B, view, args.frame_stack, args.n_step, args.gamma, args.alpha,
+                    None if observation["observation"] == "deep" else channels)
+    print(f"{run_dir}: {args.network} network on {device}, replay {replay.bytes_per_transition()} bytes per transition, "
           f"{replay.bytes_per_transition() * args.buffer_size / 2**30:.2f} GiB for {args.buffer_size:,}")
     from torch.utils.tensorboard import SummaryWriter
     writer = SummaryWriter(run_dir)
@@ -880,7 +1109,7 @@ def main(args: Args) -> None:
     every = np.arange(B)
     core.reset()
     obs = observe(core)
-    stack = Stacker(B, args.frame_stack, core.V)
+    stack = Stacker(B, args.frame_stack, view, channels)
     stack.push(obs, np.ones(B, bool))
     slot = replay.add_frames(every, obs, np.zeros(B, np.int64), np.zeros(B, bool))
     age = np.zeros(B, np.int64)
@@ -909,7 +1138,7 @@ def main(args: Args) -> None:
             core.configure(stage_config(stages[stage_index], args))
         # ALGO LOGIC: put action logic here
         with torch.no_grad():
-            action = q(*to_torch(*stack.get())).argmax(1).numpy()
+            action = q(*to_torch(*stack.get(), device)).argmax(1).cpu().numpy()
         moved = np.abs(core.agent_cells()[:, 0] - history[0]).sum(1)
         teach = (teacher | continued | stuck(since_new, moved, core.hw.max(1))) & (rng.random(B) < args.imitation)
         label = (core.heuristic_actions(args.heuristic_random_ties, args.heuristic_dead_ends)[:, 0]

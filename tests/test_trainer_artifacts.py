@@ -19,7 +19,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
 TINY = ["--total-steps", "64", "--num-envs", "2", "--learning-starts", "32", "--buffer-size", "2000",
-        "--eval-every", "0", "--torch-threads", "1"]
+        "--eval-every", "0", "--threads", "1"]
 
 
 @pytest.fixture(scope="module")
