@@ -1701,6 +1701,79 @@ class GridWorldCore:
         move = FIRST_STEP[np.where(has_goal, gy - yx[:, 0], 0) + 1, np.where(has_goal, gx - yx[:, 1], 0) + 1]
         return move.reshape(B, N)
 
+    def rollout_actions(self, worlds=None, dead_ends_first: bool = True, max_steps: int | None = None) -> np.ndarray:
+        """The one-step rollout (Bertsekas) of the deterministic heuristic (random_ties=False; greedy-dead-ends
+        by default) for one agent, batched: in each given world (all by default; a bool mask or indices) try
+        each move, finish each try with the heuristic and take the move with the fewest total steps (the
+        heuristic's own move on ties, then N, S, W, E order), (len(worlds),) actions. It plans on the full
+        state (map, coverage), also in sensor tasks: a privileged teacher, not a policy of the observation.
+
+        Each world is copied (copy_worlds) into 4 candidate worlds of a scratch core, one per move; a blocked
+        move is not a candidate, and a world with a single candidate takes it at once. The candidates then
+        run the heuristic in lockstep, one batched call per step for all of them, so the first to finish has
+        the fewest steps and decides its world: any candidate still running then has steps + remaining >= its
+        cost (at least one step a cell) and stops; stopped candidates are frozen (skipped) and the scratch core
+        is rebuilt without them once they are half of it.
+        After max_steps steps (default 4 * H * W: a heuristic that cannot finish) the heuristic's own move is
+        kept. A finished world, or one whose agent is absent or frozen, gets the heuristic's move (WAIT).
+        This core is not changed (nor its random stream)."""
+        if self.N != 1:
+            raise ValueError(f"rollout_actions plans for one agent, the worlds have {self.N}")
+        if worlds is None:
+            w = np.arange(self.B)
+        else:
+            w = np.asarray(worlds)
+            w = np.flatnonzero(w) if w.dtype == bool else w.astype(np.int64).ravel()
+        n, K = len(w), 4
+        if n == 0:
+            return np.zeros(0, np.int64)
+        scratch = self._scratch(n * K)
+        scratch.copy_worlds(np.repeat(w, K), np.arange(n * K), source=self)
+        c = self.c
+        scratch.seen[:, c:c + self.H, c:c + self.W] = True  # the full state (outside the map is obstacle)
+        base = scratch.heuristic_actions(False, dead_ends_first)[::K, 0]  # its own move, on the full state
+        out = base.copy()
+        moves = np.arange(K)
+        live = (self.remaining[w] > 0) & self.active[w, 0] & ~self.frozen[w, 0]
+        tgt = scratch.pos[::K, 0][:, None] + scratch.delta[:K]
+        run = ~scratch.views["obstacle"][tgt] & live[:, None]  # (n, K) candidates still running
+        single = run.sum(1) == 1
+        out[single] = run[single].argmax(1)
+        run[single] = False
+        priority = np.where(moves == base[:, None], -1, moves)  # ties: the heuristic's move, then N, S, W, E
+        scratch.frozen[:, 0] = ~run.ravel()
+        scratch.any_frozen = True
+        scratch.step(np.tile(moves, n)[:, None])
+        owner = np.arange(n * K)  # the (world, move) of each scratch world, flat
+        limit = 4 * self.H * self.W if max_steps is None else max_steps
+        for t in range(1, limit + 1):  # t: the steps each running candidate has taken
+            remaining = np.ones(n * K, np.int64)
+            remaining[owner] = scratch.remaining
+            done = run & (remaining.reshape(n, K) == 0)
+            decided = done.any(1)
+            if decided.any():
+                out[decided] = np.where(done[decided], priority[decided], K).argmin(1)
+                run[decided] = False
+            if not run.any() or t == limit:
+                break
+            alive = run.ravel()[owner]
+            if 2 * alive.sum() <= len(owner) and len(owner) > 8:  # rebuild the scratch without the stopped
+                keep = np.flatnonzero(alive)
+                small = self._scratch(len(keep))
+                small.copy_worlds(keep, np.arange(len(keep)), source=scratch)
+                scratch, owner, alive = small, owner[keep], alive[keep]
+            scratch.frozen[:, 0] = ~alive
+            scratch.any_frozen = True
+            scratch.step(scratch.heuristic_actions(False, dead_ends_first))
+        return out
+
+    def _scratch(self, m: int) -> GridWorldCore:
+        """m empty worlds of this core's geometry (one agent, full sensor: no sensing) for rollout_actions."""
+        scratch = GridWorldCore(EnvConfig(view_size=self.config.view_size), m)
+        if (scratch.H, scratch.W) != (self.H, self.W):
+            scratch._allocate(self.H, self.W, 1, None)
+        return scratch
+
     # --- rendering ----------------------------------------------------------------------
     def render_rgb(self, world: int = 0, cell: int = 16) -> np.ndarray:
         """RGB image of one world's known map in the colours of §4.2.4."""

@@ -173,6 +173,15 @@ class Args:
     """of equally near targets the heuristic takes the one with the fewest uncovered neighbours
     first (Warnsdorff's rule, not in the dissertation): half greedy's overlap on cpp_eval, so a
     better teacher and fallback; --no-heuristic-dead-ends for the dissertation's heuristic"""
+    teacher: str = "heuristic"
+    """the expert that acts under §6.4.2.4's imitation conditions (demonstrations included) and labels replayed
+    states for --margin-loss: heuristic (the navigation heuristic, as set by the two flags above) or rollout (the
+    one-step rollout of the deterministic heuristic, GridWorldCore.rollout_actions: about half its overlap, planned
+    on the full state also in sensor stages, a privileged teacher; milliseconds a label, see docs/rainbow_cpp.md).
+    The evaluation's stuck fallback stays the heuristic"""
+    label_fraction: float = 1.0
+    """--teacher rollout: the chance that a world the agent acts in gets its margin label from the rollout (the
+    others get the heuristic's), to bound the cost; worlds the teacher acts in always use the rollout"""
     eval_every: int = 25_000
     """environment steps between evaluations on held-out cpp_eval maps (0: none)"""
     eval_maps: int = 32
@@ -987,6 +996,29 @@ def progress_bar(total: int, initial: int, quiet: bool) -> tqdm:
     return tqdm(total=total, initial=initial, unit="step", unit_scale=True, dynamic_ncols=True,
                 disable=quiet or not sys.stdout.isatty())
 # ============================================================================= end of the shared code
+TEACHERS = ("heuristic", "rollout")  # --teacher
+
+
+def check_teacher(args: Args) -> None:
+    """--teacher and --label-fraction out of range are one-line errors."""
+    if args.teacher not in TEACHERS:
+        raise ValueError(f"--teacher must be one of {', '.join(TEACHERS)}, got {args.teacher!r}")
+    if not 0.0 <= args.label_fraction <= 1.0:
+        raise ValueError(f"--label-fraction must be in [0, 1], got {args.label_fraction}")
+
+
+def rollout_labels(core: gridworld.GridWorldCore, label: np.ndarray, teach: np.ndarray, args: Args,
+                   rng: np.random.Generator) -> tuple[np.ndarray, int]:
+    """--teacher rollout: the heuristic's labels with the rollout's in the worlds the teacher acts in and, with
+    --margin-loss, in a label_fraction of the others, one batched rollout_actions call; returns the labels and how
+    many the rollout gave."""
+    need = teach | ((args.margin_loss > 0) & (rng.random(len(teach)) < args.label_fraction))
+    w = np.flatnonzero(need)
+    label = label.copy()
+    label[w] = core.rollout_actions(w, args.heuristic_dead_ends)
+    return label, len(w)
+
+
 
 
 # ----------------------------------------------------------------------------- single-agent helpers
@@ -1082,6 +1114,7 @@ def evaluate_policy(q: QNetwork, scenarios: list, frames: int, sensor: str = "fu
 def main(args: Args) -> None:
     # TRY NOT TO MODIFY: flags, files read and seeding; nothing is written before all of them check out
     check_flags(args)
+    check_teacher(args)
     stages = load_stages(args)
     if args.buffer_size < 64 * args.num_envs:
         raise ValueError(f"--buffer-size {args.buffer_size}: need buffer_size >= 64 * num_envs")
@@ -1123,6 +1156,7 @@ def main(args: Args) -> None:
     challenging: list = []
     yardstick: dict = {}  # stage index -> the heuristic alone on that stage's evaluation maps
     updates_due, last_log, last_loss_log, t0 = 0.0, global_step, global_step, time.time() - wall
+    n_labels, label_time = 0, 0.0  # --teacher rollout: its labels and the seconds they took
     latest = ""
     stop = {"now": False}
     previous_handler = signal.signal(signal.SIGINT, lambda *_: stop.update(now=True))  # Ctrl-C: save, exit
@@ -1143,6 +1177,10 @@ def main(args: Args) -> None:
         teach = (teacher | continued | stuck(since_new, moved, core.hw.max(1))) & (rng.random(B) < args.imitation)
         label = (core.heuristic_actions(args.heuristic_random_ties, args.heuristic_dead_ends)[:, 0]
                  if teach.any() or args.margin_loss else None)
+        if args.teacher == "rollout" and label is not None:
+            tick = time.perf_counter()
+            label, n = rollout_labels(core, label, teach, args, rng)
+            n_labels, label_time = n_labels + n, label_time + time.perf_counter() - tick
         if teach.any():  # a heuristic without a target (WAIT) leaves the agent its own move
             action = np.where(teach & (label < gridworld.WAIT), label, action)
 
@@ -1213,9 +1251,13 @@ def main(args: Args) -> None:
         if global_step - last_log >= 1000:
             sps = int(global_step / max(time.time() - t0, 1e-9))
             writer.add_scalar("charts/SPS", sps, global_step)
-            bar.set_postfix_str(f"{stages[stage_index].name}, SPS {sps}{latest}", refresh=False)
+            rate = ""
+            if args.teacher == "rollout" and label_time > 0:
+                writer.add_scalar("charts/labels_per_s", n_labels / label_time, global_step)
+                rate = f", labels/s {n_labels / label_time:.0f}"
+            bar.set_postfix_str(f"{stages[stage_index].name}, SPS {sps}{rate}{latest}", refresh=False)
             if bar.disable and not args.quiet:
-                print(f"step {global_step:,}/{total:,} stage {stages[stage_index].name} SPS {sps}", flush=True)
+                print(f"step {global_step:,}/{total:,} stage {stages[stage_index].name} SPS {sps}{rate}", flush=True)
             last_log = global_step
         if args.eval_every and global_step % args.eval_every < B:
             stage = stages[stage_index]
@@ -1248,6 +1290,9 @@ def main(args: Args) -> None:
     writer.close()
     signal.signal(signal.SIGINT, previous_handler)
     print(f"saved {os.path.join(run_dir, 'checkpoint.pt')} and {args.export} at step {global_step:,}")
+    if args.teacher == "rollout":
+        print(f"rollout teacher: {n_labels:,} labels in {label_time:.1f} s, {n_labels / max(label_time, 1e-9):.0f} "
+              "labels/s")
 
 
 if __name__ == "__main__":
