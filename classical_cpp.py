@@ -10,6 +10,7 @@ and it rejects illegal or incomplete paths.
     python classical_cpp.py --planner greedy --dataset maps/cpp_eval.npz --limit 200
     python classical_cpp.py --planner partition --dataset maps/marl_eval.npz --agents 5
     python classical_cpp.py --report --out DIR     # every planner on the report's maps -> DIR/classical_cpp.json
+    python classical_cpp.py --report --structured-per-band 1 --per-size 2 --out DIR   # a quicker one
 
 Single agent: greedy (the navigation heuristic run to completion), greedy-dead-ends (the same
 with Warnsdorff's tie-break: of the nearest uncovered cells, the one with the fewest uncovered
@@ -47,6 +48,9 @@ ROOT = os.path.dirname(os.path.abspath(__file__))
 REPORT_PLANNERS = ("greedy", "rollout", "boustrophedon", "spiral-stc", "wavefront", "lkh")
 REPORT_BANDS = ((5, 10), (11, 15), (16, 20), (21, 25), (26, 30))  # the map-size bands --report averages the overlap over
 REPORT_AGENTS = (2, 5, 10)
+STRUCTURED_PLANNERS = ("greedy", "greedy-dead-ends", "boustrophedon", "spiral-stc", "wavefront", "rollout", "lkh")
+STRUCTURED_BANDS = ((10, 15), (16, 20), (21, 25), (26, 30))  # structured_eval's sizes, in bands
+STRUCTURED_PER_BAND = 3  # maps per family and band: 48 maps, ~15 min of planners on one core (LKH, rollout)
 MARL_MIN_SIZE, MARL_EVERY = 10, 5  # the multi-agent baselines: every 5th marl_eval layout of sizes 10-30
 
 
@@ -716,10 +720,10 @@ SINGLE_AGENT = {"boustrophedon", "spiral-stc", "wavefront", "lkh"}
 
 
 # ----------------------------------------------------------------------------- replay
-def replay(scenario: Scenario, paths: list[np.ndarray]) -> dict:
+def replay(scenario: Scenario, paths: list[np.ndarray], complete: bool = True) -> dict:
     """Run per-agent paths through gridworld and return its episode metrics. Raises ValueError
     if a path leaves the map, jumps, enters an obstacle, is blocked by the safety controller or
-    leaves a free cell uncovered."""
+    (unless `complete` is False: then "completed" says so) leaves a free cell uncovered."""
     n = len(scenario.starts)
     if len(paths) != n:
         raise ValueError(f"{len(paths)} paths for {n} agents")
@@ -745,7 +749,7 @@ def replay(scenario: Scenario, paths: list[np.ndarray]) -> dict:
         if events["blocked"].any():
             raise ValueError(f"step {t}: a move is blocked (obstacle, border or another agent)")
     metrics = {k: v[0].item() for k, v in core.metrics().items()}
-    if not metrics["completed"]:
+    if complete and not metrics["completed"]:
         raise ValueError(f"the paths leave {core.remaining[0]} free cells uncovered")
     metrics["lower_bound"] = lower_bound(scenario)
     return metrics
@@ -789,9 +793,12 @@ class Args:
     (default results/)"""
     report: bool = False
     """instead: run every planner on maps/cpp_eval.npz (--per-size maps per size), the external
-    maps and maps/marl_eval.npz, write OUT/classical_cpp.json and print the README tables"""
+    maps, maps/marl_eval.npz and maps/structured_eval.npz (--structured-per-band maps per family and size
+    band), write OUT/classical_cpp.json and print the README tables"""
     per_size: int = 20
     """maps per size for --report (LKH takes seconds per map)"""
+    structured_per_band: int = STRUCTURED_PER_BAND
+    """structured_eval maps per family and size band for --report (4 families x 4 bands)"""
     quiet: bool = False
     """no progress bar"""
 
@@ -835,9 +842,10 @@ def with_starts(s: Scenario) -> Scenario:
 
 
 def evaluate(name: str, scenarios: list[Scenario], bar: tqdm | None = None,
-             rollout_base: str = "greedy-dead-ends") -> tuple[list[dict], float]:
+             rollout_base: str = "greedy-dead-ends", complete: bool = True) -> tuple[list[dict], float]:
     """Plan and replay every scenario: the metrics of each, and the planning time in ms per map. The
-    batched planners plan 64 maps at a time, the others one at a time, so that `bar` moves."""
+    batched planners plan 64 maps at a time, the others one at a time, so that `bar` moves. With
+    `complete` False an incomplete path is a row with "completed" False instead of a ValueError."""
     rows, seconds = [], 0.0
     step = 64 if name in BATCHED else 1
     for i in range(0, len(scenarios), step):
@@ -845,7 +853,7 @@ def evaluate(name: str, scenarios: list[Scenario], bar: tqdm | None = None,
         t0 = time.perf_counter()
         paths = plan(name, part, rollout_base)
         seconds += time.perf_counter() - t0
-        rows += [replay(s, p) for s, p in zip(part, paths)]
+        rows += [replay(s, p, complete) for s, p in zip(part, paths)]
         if bar is not None:
             bar.update(len(part))
     return rows, 1000 * seconds / max(len(scenarios), 1)
@@ -882,30 +890,128 @@ def external_episodes() -> list[tuple[str, Scenario]]:
     return episodes
 
 
-def compare(per_size: int, quiet: bool = False) -> dict:
-    """Every report planner on the first `per_size` cpp_eval maps of each size (mean overlap by size
-    band) and on the external maps (overlap per reference start), and the multi-agent baselines'
-    mean time-save factor on marl_eval beside the lower bound."""
+def structured_eval_subset(per_band: int) -> tuple[list[Scenario], np.ndarray, np.ndarray]:
+    """`per_band` maps of each structured_eval family and size band (STRUCTURED_BANDS), spread evenly over the
+    band's sizes (the first map of each size first; 3 of sizes 10-15: one each of 11, 13, 15), each with its
+    first stored start (the single-agent scenario) marked covered; and their families and sizes."""
+    path = os.path.join(ROOT, "maps", "structured_eval.npz")
+    with np.load(path) as data:
+        families, sizes = data["family"], data["size"]
+    keep = []
+    for family in gridworld.STRUCTURED_FAMILIES:
+        for a, b in STRUCTURED_BANDS:
+            by_size = [np.flatnonzero((families == family) & (sizes == z)) for z in range(a, b + 1)]
+            used = [0] * len(by_size)
+            for j in range(per_band):
+                k = int((j + 0.5) * len(by_size) / per_band) % len(by_size)
+                if used[k] < len(by_size[k]):
+                    keep.append(by_size[k][used[k]])
+                    used[k] += 1
+    keep = np.array(keep, np.int64)
+    all_maps = gridworld.load_dataset(path)
+    chosen = [with_starts(Scenario(all_maps[i].obstacles, all_maps[i].starts[:1])) for i in keep]
+    return chosen, families[keep], sizes[keep]
+
+
+def _band(a: int, b: int) -> str:
+    return f"{a}-{b}"
+
+
+def _single_agent(names, cpp: list[Scenario], sizes: np.ndarray, external: list, bar) -> tuple[dict, dict]:
+    """Planners `names` on the cpp_eval maps (mean overlap by REPORT_BANDS, planning ms) and the external
+    episodes (overlap per start): the "cpp_eval" and "external" entries of `compare`."""
+    by_size, by_map = {}, {}
+    for name in names:
+        bar.set_description(name)
+        rows, ms = evaluate(name, cpp, bar)
+        overlap = np.array([r["overlap"] for r in rows])
+        by_size[name] = {
+            "plan_ms_per_map": round(ms, 2), "all": round(float(overlap.mean()), 4),
+            **{_band(a, b): round(float(overlap[(sizes >= a) & (sizes <= b)].mean()), 4) for a, b in REPORT_BANDS}}
+        rows, _ = evaluate(name, [s for _, s in external], bar)
+        for (m, _), r in zip(external, rows):
+            by_map.setdefault(m, {}).setdefault(name, []).append(r["overlap"])
+    return by_size, by_map
+
+
+def _bar(total: int, quiet: bool) -> tqdm:
+    return tqdm(total=total, desc="planners", unit="map", disable=quiet or not sys.stdout.isatty())
+
+
+def compare_structured(per_band: int = STRUCTURED_PER_BAND, quiet: bool = False, bar: tqdm | None = None) -> dict:
+    """STRUCTURED_PLANNERS on `structured_eval_subset(per_band)`: per planner and family (and over all of
+    them) the mean overlap, the completion rate and the planning ms per map, and the mean overlap per size
+    band (over the families, and per family); the "structured_eval" entry of `compare`."""
+    if per_band < 1:
+        raise ValueError(f"--structured-per-band must be >= 1, got {per_band}")
+    scenarios, families, sizes = structured_eval_subset(per_band)
+    names = [f for f in gridworld.STRUCTURED_FAMILIES if (families == f).any()]
+    bands = [(a, b) for a, b in STRUCTURED_BANDS if ((sizes >= a) & (sizes <= b)).any()]
+    result = {"per_band": per_band, "bands": [list(b) for b in bands], "lkh_time_limit_s": LKH_TIME_LIMIT,
+              "maps": {f: int((families == f).sum()) for f in names}, "planners": {}}
+
+    def summary(rows, ms, pick):
+        overlap = np.array([r["overlap"] for r in rows])
+        done = np.array([r["completed"] for r in rows])
+        out = {"overlap": round(float(overlap.mean()), 4), "completion": round(float(done.mean()), 4),
+               "plan_ms_per_map": round(float(ms), 2)}
+        out["by_band"] = {_band(a, b): round(float(overlap[(pick >= a) & (pick <= b)].mean()), 4)
+                          for a, b in bands if ((pick >= a) & (pick <= b)).any()}
+        return out
+
+    own = bar is None
+    bar = _bar(len(STRUCTURED_PLANNERS) * len(scenarios), quiet) if own else bar
+    try:
+        for name in STRUCTURED_PLANNERS:
+            bar.set_description(f"{name}, structured_eval")
+            entry, rows, seconds = {}, [], 0.0
+            for f in names:
+                idx = np.flatnonzero(families == f)
+                got, ms = evaluate(name, [scenarios[i] for i in idx], bar, complete=False)
+                entry[f] = summary(got, ms, sizes[idx])
+                rows += got
+                seconds += ms * len(idx)
+            order = np.concatenate([np.flatnonzero(families == f) for f in names])
+            entry["all"] = summary(rows, seconds / len(rows), sizes[order])
+            result["planners"][name] = entry
+    finally:
+        if own:
+            bar.close()
+    return result
+
+
+def compare_rollout(per_size: int, quiet: bool = False) -> dict:
+    """The rollout planner alone on `compare`'s cpp_eval subset and external episodes: `compare`'s "cpp_eval"
+    and "external" entries for rollout only (for a classical_cpp.json collected before rollout was added)."""
     if per_size < 1:
         raise ValueError(f"--per-size must be >= 1, got {per_size}")
+    cpp, sizes = cpp_eval_subset(per_size)
+    external = external_episodes()
+    with _bar(len(cpp) + len(external), quiet) as bar:
+        by_size, by_map = _single_agent(["rollout"], cpp, sizes, external, bar)
+    return {"per_size": per_size, "planners": ["rollout"], "cpp_eval": by_size, "external": by_map}
+
+
+def compare(per_size: int, quiet: bool = False, structured_per_band: int = STRUCTURED_PER_BAND) -> dict:
+    """Every report planner on the first `per_size` cpp_eval maps of each size (mean overlap by size
+    band) and on the external maps (overlap per reference start), the multi-agent baselines'
+    mean time-save factor on marl_eval beside the lower bound, and `compare_structured` on
+    `structured_per_band` structured_eval maps per family and size band."""
+    if per_size < 1:
+        raise ValueError(f"--per-size must be >= 1, got {per_size}")
+    if structured_per_band < 1:
+        raise ValueError(f"--structured-per-band must be >= 1, got {structured_per_band}")
     cpp, sizes = cpp_eval_subset(per_size)
     external = external_episodes()
     teams = {n: marl_eval_subset(n) for n in REPORT_AGENTS}
     result = {"per_size": per_size, "lkh_time_limit_s": LKH_TIME_LIMIT, "marl_every": MARL_EVERY,
               "marl_sizes": [int(min(z.min() for _, z in teams.values())), int(max(z.max() for _, z in teams.values()))],
               "cpp_eval": {}, "external": {}, "marl_eval": {}}
-    total = len(REPORT_PLANNERS) * (len(cpp) + len(external)) + 2 * sum(len(c) for c, _ in teams.values())
-    with tqdm(total=total, desc="planners", unit="map", disable=quiet or not sys.stdout.isatty()) as bar:
-        for name in REPORT_PLANNERS:
-            bar.set_description(name)
-            rows, ms = evaluate(name, cpp, bar)
-            overlap = np.array([r["overlap"] for r in rows])
-            result["cpp_eval"][name] = {
-                "plan_ms_per_map": round(ms, 2), "all": round(float(overlap.mean()), 4),
-                **{f"{a}-{b}": round(float(overlap[(sizes >= a) & (sizes <= b)].mean()), 4) for a, b in REPORT_BANDS}}
-            rows, _ = evaluate(name, [s for _, s in external], bar)
-            for (m, _), r in zip(external, rows):
-                result["external"].setdefault(m, {}).setdefault(name, []).append(r["overlap"])
+    structured = len(structured_eval_subset(structured_per_band)[0])
+    total = (len(REPORT_PLANNERS) * (len(cpp) + len(external)) + 2 * sum(len(c) for c, _ in teams.values())
+             + len(STRUCTURED_PLANNERS) * structured)
+    with _bar(total, quiet) as bar:
+        result["cpp_eval"], result["external"] = _single_agent(REPORT_PLANNERS, cpp, sizes, external, bar)
         for n, (chosen, _) in teams.items():
             bound = np.mean([lower_bound(s) / max(int((~s.obstacles).sum()) - n, 1) for s in chosen])
             entry = {"maps": len(chosen), "lower_bound_time_save": round(float(bound), 4)}
@@ -914,6 +1020,7 @@ def compare(per_size: int, quiet: bool = False) -> dict:
                 rows, _ = evaluate(name, chosen, bar)
                 entry[name] = round(float(np.mean([r["time_save"] for r in rows])), 4)
             result["marl_eval"][str(n)] = entry
+        result["structured_eval"] = compare_structured(structured_per_band, quiet, bar)
     return result
 
 
@@ -931,6 +1038,23 @@ def tables(result: dict) -> str:
     lines += ["", "| agents | maps | greedy (claims) | partition | lower bound |", "|---|---|---|---|---|"]
     for n, e in result["marl_eval"].items():
         lines.append(f"| {n} | {e['maps']} | {e['greedy']:.3f} | {e['partition']:.3f} | {e['lower_bound_time_save']:.3f} |")
+    if "structured_eval" in result:
+        lines += ["", structured_table(result["structured_eval"])]
+    return "\n".join(lines)
+
+
+def structured_table(structured: dict) -> str:
+    """`compare_structured`'s mean overlap per planner and family, as Markdown (completion below 100% shown)."""
+    planners = structured["planners"]
+    families = list(structured["maps"])
+
+    def cell(r):
+        return f"{r['overlap']:.3f}" + ("" if r["completion"] == 1 else f" ({100 * r['completion']:.0f}% done)")
+
+    lines = ["| planner | " + " | ".join(families) + " | all | plan ms/map |", "|---" * (len(families) + 3) + "|"]
+    for name, r in planners.items():
+        lines.append(f"| {name} | " + " | ".join(cell(r[f]) for f in families)
+                     + f" | {cell(r['all'])} | {r['all']['plan_ms_per_map']:.1f} |")
     return "\n".join(lines)
 
 
@@ -954,11 +1078,11 @@ def write_json(path: str, data: dict) -> str:
     return path
 
 
-def report(per_size: int, out: str, quiet: bool = False) -> dict:
+def report(per_size: int, out: str, quiet: bool = False, structured_per_band: int = STRUCTURED_PER_BAND) -> dict:
     """`compare` into OUT/classical_cpp.json, and its tables printed."""
     if os.path.exists(out) and not os.path.isdir(out):
         raise ValueError(f"--out {out}: not a folder")
-    result = compare(per_size, quiet)
+    result = compare(per_size, quiet, structured_per_band)
     write_json(os.path.join(out, "classical_cpp.json"), result)
     print(tables(result))
     return result
@@ -966,7 +1090,7 @@ def report(per_size: int, out: str, quiet: bool = False) -> dict:
 
 def main(args: Args) -> None:
     if args.report:
-        report(args.per_size, args.out or os.path.join(ROOT, "results"), args.quiet)
+        report(args.per_size, args.out or os.path.join(ROOT, "results"), args.quiet, args.structured_per_band)
         return
     if args.planner not in PLANNERS:
         raise ValueError(f"unknown planner {args.planner!r}; choose from {sorted(PLANNERS)}")

@@ -2,16 +2,21 @@
 those JSON files into RESULTS.md (a pure function of them: no experiment, clock or git), plot draws the PNG
 figures from the same JSON.
 
-    python report.py                              # all: collect every part, render, plot (~25 min of planners)
+    python report.py                              # all: collect every part, render, plot (~55 min of planners)
     python report.py all --reuse                  # collect only the parts whose JSON is missing, then render, plot
     python report.py render                       # RESULTS.md from the JSON in results/, nothing re-run
     python report.py plot --out DIR               # the figures from the JSON in DIR
     python report.py collect --parts classical --per-size 2 --out DIR
+    python report.py collect --parts structured rollout --structured-per-band 3   # only the newer planner pieces
     python evaluate.py report ...                 # the same commands
 
-Parts (JSON under --out): classical (classical_cpp.json: classical_cpp.compare), rainbow_cpp (rainbow_cpp.json),
+Parts (JSON under --out): classical (classical_cpp.json: classical_cpp.compare, structured_eval and rollout
+included), structured (planners_structured.json: classical_cpp.compare_structured alone), rollout (rollout.json:
+classical_cpp.compare_rollout, the rollout planner alone on classical's maps), rainbow_cpp (rainbow_cpp.json),
 rainbow_marl (rainbow_marl.json), tabular (tabular/fig5_5.json); a learned part is skipped while its model is
-not trained. Read when present, not collected here: tabular/fig5_4/*.json (tabular_q.py training runs) and
+not trained, structured and rollout while classical is collected too (it holds them). Render and plot take
+rollout's rows and structured_eval from classical_cpp.json where it has them, else from those two files.
+Read when present, not collected here: tabular/fig5_4/*.json (tabular_q.py training runs) and
 marl_rewards/*/summary.json (evaluate.py runs; README for both). Each collected JSON records where it was made
 under "provenance" (git commit, CPU, cores, torch threads, date, wall time, flags); the models' training is
 described by their own JSON (models/*.json), which collect copies in. Every command writes into a temporary
@@ -42,8 +47,10 @@ import gridworld
 
 ROOT = os.path.dirname(os.path.abspath(__file__))
 RESULTS = os.path.join(ROOT, "results")
-PARTS = {"classical": "classical_cpp.json", "rainbow_cpp": "rainbow_cpp.json", "rainbow_marl": "rainbow_marl.json",
+PARTS = {"classical": "classical_cpp.json", "structured": "planners_structured.json", "rollout": "rollout.json",
+         "rainbow_cpp": "rainbow_cpp.json", "rainbow_marl": "rainbow_marl.json",
          "tabular": os.path.join("tabular", "fig5_5.json")}
+IN_CLASSICAL = {"structured": "structured_eval", "rollout": "rollout"}  # parts classical_cpp.compare also holds
 MODELS = {"rainbow_cpp": evaluate.DEFAULT_CHECKPOINT["rainbow"], "rainbow_marl": evaluate.DEFAULT_CHECKPOINT["marl"],
           "tabular": evaluate.DEFAULT_CHECKPOINT["tabular"]}
 SCRIPTS = {"rainbow_cpp": "rainbow_cpp.py", "rainbow_marl": "rainbow_marl.py", "tabular": "tabular_q.py"}
@@ -53,7 +60,8 @@ MARL_EVERY, MARL_AGENTS = 10, range(1, 16)  # rainbow_marl: every 10th marl_eval
 FAULTY_AT, FAULTY_AGENTS = 0.5, (2, 5, 10)  # §7.5.3.3: the last agent freezes halfway
 REWARDS = ("greedy", "pretrained", "competitive", "cooperative", "size_invariant")  # results/marl_rewards/ runs
 FIGURES = {"planners_by_size": "planners_overlap_by_size.png", "planners_external": "planners_external.png",
-           "marl_baselines": "marl_baselines.png", "rainbow_cpp": "rainbow_overlap_by_size.png",
+           "planners_structured": "planners_structured.png", "marl_baselines": "marl_baselines.png",
+           "rainbow_cpp": "rainbow_overlap_by_size.png",
            "rainbow_marl": "rainbow_marl_time_save.png", "fig5_4": "tabular_fig5_4.png", "fig5_5": "tabular_fig5_5.png"}
 # The numbers the report holds the results against, each with its source; no other number in the text is typed.
 REFERENCE = {
@@ -280,15 +288,30 @@ def parts_to_collect(args: Collect) -> list[str]:
         raise ValueError(f"--per-size must be >= 1, got {args.per_size}")
     if args.p2p_maps < 1:
         raise ValueError(f"--p2p-maps must be >= 1, got {args.p2p_maps}")
+    if args.structured_per_band < 1:
+        raise ValueError(f"--structured-per-band must be >= 1, got {args.structured_per_band}")
     todo = []
     for part in dict.fromkeys(args.parts):
-        if args.reuse and os.path.exists(os.path.join(args.out, PARTS[part])):
+        if args.reuse and (os.path.exists(os.path.join(args.out, PARTS[part])) or _in_classical(args.out, part)):
+            continue
+        if part in IN_CLASSICAL and "classical" in args.parts and not (
+                args.reuse and os.path.exists(os.path.join(args.out, PARTS["classical"]))):
+            print(f"{part}: collected with classical (into {PARTS['classical']})")
             continue
         if part in MODELS and not os.path.exists(os.path.join(ROOT, MODELS[part])):
             print(f"{part}: skipped, {MODELS[part]} is not trained yet")
             continue
         todo.append(part)
     return todo
+
+
+def _in_classical(out: str, part: str) -> bool:
+    """Whether OUT/classical_cpp.json already holds what part `part` collects (structured_eval, or rollout)."""
+    path = os.path.join(out, PARTS["classical"])
+    if part not in IN_CLASSICAL or not os.path.exists(path):
+        return False
+    c = read_json(path)
+    return "structured_eval" in c if part == "structured" else "rollout" in (c.get("cpp_eval") or {})
 
 
 def collect(args: Collect, staging: str) -> list[str]:
@@ -298,7 +321,11 @@ def collect(args: Collect, staging: str) -> list[str]:
         started = time.time()
         model = os.path.join(ROOT, MODELS.get(part, ""))
         if part == "classical":
-            result = classical_cpp.compare(args.per_size, args.quiet)
+            result = classical_cpp.compare(args.per_size, args.quiet, args.structured_per_band)
+        elif part == "structured":
+            result = {"structured_eval": classical_cpp.compare_structured(args.structured_per_band, args.quiet)}
+        elif part == "rollout":
+            result = classical_cpp.compare_rollout(args.per_size, args.quiet)
         elif part == "rainbow_cpp":
             result = rainbow_results(args.per_size, args.p2p_maps, model, args.quiet)
         elif part == "rainbow_marl":
@@ -405,6 +432,90 @@ def provenance_lines(results: dict) -> list[str]:
             table(["results", "collected", "git commit", "CPU", "cores", "torch threads", "wall time", "flags"], rows)]
 
 
+def planners(results: dict) -> dict:
+    """classical_cpp.json as the report reads it: planners it lacks on cpp_eval and the MovingAI maps filled in from
+    rollout.json (the rollout part), and its "structured_eval" from planners_structured.json (the structured part)
+    if it has none; classical_cpp.json's own entries come first. A new dict: `results` is left as it was."""
+    with reading(results["paths"]["classical"]):
+        c = dict(results["classical"])
+        if not isinstance(c["cpp_eval"], dict) or not isinstance(c["external"], dict):
+            raise TypeError("cpp_eval and external must be JSON objects")
+    ro, st = results.get("rollout"), results.get("structured")
+    if ro is not None:
+        with reading(results["paths"]["rollout"]):
+            extra = [n for n in ro["cpp_eval"] if n not in c["cpp_eval"]]
+            if extra:
+                cpp = list(c["cpp_eval"])
+                at = cpp.index("lkh") if "lkh" in cpp else len(cpp)  # the near-optimal reference stays last
+                order = cpp[:at] + extra + cpp[at:]
+                both = {**c["cpp_eval"], **ro["cpp_eval"]}
+                c["cpp_eval"] = {n: both[n] for n in order}
+                c["external"] = {m: {n: {**per, **ro["external"][m]}[n] for n in order} for m, per in c["external"].items()}
+                c["filled_in"] = {"planners": extra, "per_size": ro["per_size"], "file": PARTS["rollout"]}
+    if st is not None and "structured_eval" not in c:
+        with reading(results["paths"]["structured"]):
+            c["structured_eval"] = st["structured_eval"]
+    return c
+
+
+def _join(items: list[str]) -> str:
+    return items[0] if len(items) == 1 else ", ".join(items[:-1]) + " and " + items[-1]
+
+
+def structured_lines(s: dict) -> list[str]:
+    """The planners on structured_eval by map family and size band, rollout against the others and against LKH."""
+    plans, families = s["planners"], list(s["maps"])
+    bands = [f"{a}-{b}" for a, b in s["bands"]]
+    n_maps = sum(s["maps"].values())
+
+    def cell(r):
+        return f"{r['overlap']:.3f}" + ("" if r["completion"] == 1 else f" ({100 * r['completion']:.0f}% completed)")
+
+    lines = [
+        f"`maps/structured_eval.npz` (`maps/make_datasets.py`), {s['per_band']} maps per family and size band "
+        f"({', '.join(bands)}; spread over each band's sizes), {n_maps} maps in all, one agent from each map's first "
+        f"stored start; mean overlap (completion shown where below 100%), LKH ({s['lkh_time_limit_s']:.0f} s cap per "
+        "map) the near-optimal reference.", "",
+        table(["planner"] + families + ["all", "completed", "plan ms/map"],
+              [[n] + [cell(r[f]) for f in families] + [cell(r["all"]), f"{100 * r['all']['completion']:.0f}%",
+                                                       f"{r['all']['plan_ms_per_map']:.1f}"] for n, r in plans.items()])]
+    if "rollout" in plans:
+        ro = plans["rollout"]
+        others = [n for n in plans if n not in ("rollout", "lkh")]
+        best = {f: min(plans[n][f]["overlap"] for n in others) for f in families}
+        below = [f for f in families if ro[f]["overlap"] < best[f]]
+
+        def rivals(f):
+            return _join([n for n in others if plans[n][f]["overlap"] == best[f]])
+
+        tied = [f"{f} ({rivals(f)} also {best[f]:.3f})" for f in families if ro[f]["overlap"] == best[f]]
+        above = [f"{f} ({rivals(f)} {best[f]:.3f} against {ro[f]['overlap']:.3f})"
+                 for f in families if ro[f]["overlap"] > best[f]]
+        done = min(ro[f]["completion"] for f in families)
+        sentence = (f"Rollout is below every other planner but LKH ({', '.join(others)}) in {len(below)} of "
+                    f"{len(families)} families" + (f"; tied in {_join(tied)}" if tied else "")
+                    + (f"; above in {_join(above)}" if above else "")
+                    + f"; completion {100 * done:.0f}%" + (" in every family." if done == 1 else " at worst."))
+        if "lkh" in plans:
+            lk = plans["lkh"]
+            gap = {f: ro[f]["overlap"] - lk[f]["overlap"] for f in families}
+            worst, best = max(families, key=gap.get), min(families, key=gap.get)
+            sentence += (" Rollout's gap to LKH (mean overlap, rollout − LKH): "
+                         + "; ".join(f"{f} {gap[f]:+.3f} ({ro[f]['overlap']:.3f} against {lk[f]['overlap']:.3f}, "
+                                     f"{ro[f]['overlap'] / lk[f]['overlap']:.1f}×)" if lk[f]["overlap"] > 0 else
+                                     f"{f} {gap[f]:+.3f} ({ro[f]['overlap']:.3f} against {lk[f]['overlap']:.3f})"
+                                     for f in families)
+                         + f"; all maps {ro['all']['overlap'] - lk['all']['overlap']:+.3f}. Largest in {worst}, "
+                         f"smallest in {best}.")
+        lines += ["", sentence]
+    lines += ["", "Mean overlap by size band (all families):", "",
+              table(["planner"] + bands + ["all"],
+                    [[n] + [f"{r['all']['by_band'][b]:.3f}" for b in bands] + [f"{r['all']['overlap']:.3f}"]
+                     for n, r in plans.items()]), "",
+              f"![planners on structured_eval]({FIGURES['planners_structured']})"]
+    return lines
+
+
 def classical_lines(c: dict) -> tuple[list[str], list[str]]:
     """The planner comparison (Table 6.4) and the multi-agent baselines."""
     cpp, ext, marl = c["cpp_eval"], c["external"], c["marl_eval"]
@@ -417,6 +528,8 @@ def classical_lines(c: dict) -> tuple[list[str], list[str]]:
         table(["planner"] + bands + ["all", "plan ms/map"],
               [[n] + [f"{cpp[n][b]:.3f}" for b in bands] + [f"{cpp[n]['all']:.3f}", f"{cpp[n]['plan_ms_per_map']:.1f}"]
                for n in planners]), "",
+        *([f"{_join(c['filled_in']['planners'])}: from `{c['filled_in']['file']}` (collected on its own, the first "
+             f"{c['filled_in']['per_size']} maps of each size and the same MovingAI starts).", ""] if "filled_in" in c else []),
         f"![planners by size]({FIGURES['planners_by_size']})", "",
         f"MovingAI maps (`maps/external`), mean overlap over the {'/'.join(map(str, starts))} reference starts:", "",
         table(["map"] + planners, [[m] + [f"{np.mean(ext[m][n]):.3f}" for n in planners] for m in maps]), "",
@@ -618,8 +731,9 @@ def tabular_lines(fig55: dict | None, runs: dict) -> list[str]:
 def headline(results: dict) -> list[str]:
     """The README's results table: mean overlap of the shipped agent beside the planners on the same maps (cpp_eval's
     subset of the planner report, the MovingAI maps from their reference starts), and the team's time-save factor."""
-    c, rb, mr = results["classical"], results["rainbow_cpp"], results["rainbow_marl"]
+    c, rb, mr = planners(results), results["rainbow_cpp"], results["rainbow_marl"]
     ext = c["external"]
+    st = c.get("structured_eval")  # when there: one more column, and rollout's row
 
     def external(planner):
         return float(np.mean([np.mean(by[planner]) for by in ext.values()]))
@@ -627,15 +741,27 @@ def headline(results: dict) -> list[str]:
     def cpp(key):
         return float(np.mean([v["overlap"] for v in rb[key].values()]))
 
+    def structured(planner):
+        return f"{st['planners'][planner]['all']['overlap']:.3f}" if planner in st["planners"] else "—"
+
     rows = []
     if rb is not None:
         rows.append(["rainbow_cpp (shipped, + heuristic fallback)", f"{cpp('full'):.3f}",
-                     f"{float(np.mean([np.mean(v) for v in rb['external'].values()])):.3f}"])
-        rows.append(["greedy-dead-ends (its teacher)", f"{cpp('greedy_dead_ends'):.3f}", "—"])
+                     f"{float(np.mean([np.mean(v) for v in rb['external'].values()])):.3f}"]
+                    + ([] if st is None else [f"{rb['structured_eval']['all']['overlap']:.3f}"
+                                              if "structured_eval" in rb else "—"]))
+        rows.append(["greedy-dead-ends (its teacher)", f"{cpp('greedy_dead_ends'):.3f}", "—"]
+                    + ([] if st is None else [structured("greedy-dead-ends")]))
+    names = ["greedy", "wavefront", "boustrophedon", "spiral-stc", "lkh"]
+    if st is not None and "rollout" in c["cpp_eval"]:
+        names.insert(-1, "rollout")
     rows += [[name, f"{c['cpp_eval'][name]['all']:.3f}", f"{external(name):.3f}"]
-             for name in ("greedy", "wavefront", "boustrophedon", "spiral-stc", "lkh")]
-    lines = [table(["mean overlap $O_v$ (lower is better)", f"cpp_eval ({c['per_size']} maps a size, 5-30)",
-                    f"MovingAI ({len(ext)} maps, 3 starts each)"], rows)]
+             + ([] if st is None else [structured(name)]) for name in names]
+    header = ["mean overlap $O_v$ (lower is better)", f"cpp_eval ({c['per_size']} maps a size, 5-30)",
+              f"MovingAI ({len(ext)} maps, 3 starts each)"]
+    if st is not None:
+        header.append(f"structured_eval ({sum(st['maps'].values())} maps, {len(st['maps'])} families)")
+    lines = [table(header, rows)]
     if mr is not None:
         team = [n for n in ("2", "5", "10") if n in mr["agents"]]
         lines += ["", table(["mean time-save $t_{sf}$, marl_eval sizes 10-30", *[f"N = {n}" for n in team]], [
@@ -653,8 +779,14 @@ def render(results: dict) -> str:
     def missing(part):
         return [NOT_COLLECTED.format(file=PARTS[part], part=part, model=MODELS[part], script=SCRIPTS[part])]
 
+    classical = planners(results)
     with reading(paths["classical"]):
-        comparison, baselines = classical_lines(results["classical"])
+        comparison, baselines = classical_lines(classical)
+    structured = ["*Not collected:* no `structured_eval` in `classical_cpp.json` nor a `planners_structured.json` "
+                  "here; `python report.py collect --parts structured` fills it in."]
+    if "structured_eval" in classical:
+        with reading(paths["classical"] if "structured_eval" in results["classical"] else paths["structured"]):
+            structured = structured_lines(classical["structured_eval"])
     full_info = sensor_based = point_to_point = missing("rainbow_cpp")
     if results["rainbow_cpp"] is not None:
         with reading(paths["rainbow_cpp"]):
@@ -674,6 +806,7 @@ def render(results: dict) -> str:
         "## Provenance", "", *provenance_lines(results), "",
         "## Single agent, full information (Figs. 6.13-6.16)", "", *full_info, "",
         "## Comparison with classical planners (Table 6.4)", "", *comparison, "",
+        "## Structured maps (planners)", "", *structured, "",
         "## Sensor-based coverage (Figs. 6.17-6.22)", "", *sensor_based, "",
         "## Point-to-point (Fig. 6.23)", "", *point_to_point, "",
         "## Multi-agent (Figs. 7.11-7.12)", "", *baselines, "", *multi_agent, "",
@@ -725,6 +858,26 @@ def plot_classical(c: dict, folder: str) -> list[str]:
     ax.legend()
     written.append(_save(fig, folder, "marl_baselines"))
     return written
+
+
+def plot_structured(s: dict, folder: str) -> list[str]:
+    """Grouped bars: the planners' mean overlap on structured_eval per family (and over all of them)."""
+    import matplotlib.pyplot as plt
+    plans = s["planners"]
+    groups = [*s["maps"], "all"]
+    fig, ax = plt.subplots(figsize=(9, 4))
+    width = 0.8 / len(plans)
+    for k, (name, r) in enumerate(plans.items()):
+        bars = ax.bar(np.arange(len(groups)) + k * width, [r[g]["overlap"] for g in groups], width, label=name)
+        for bar, g in zip(bars, groups):
+            if r[g]["completion"] < 1:  # an incomplete path: hatched
+                bar.set_hatch("//")
+    ax.set_xticks(np.arange(len(groups)) + 0.4 - width / 2, groups)
+    ax.set(ylabel="mean overlap $O_v$", title=f"Planners on structured_eval ({sum(s['maps'].values())} maps, "
+           f"{s['per_band']} per family and size band)")
+    ax.grid(alpha=0.3, axis="y")
+    ax.legend(fontsize=8, ncol=2)
+    return [_save(fig, folder, "planners_structured")]
 
 
 def plot_rainbow(rb: dict, c: dict, folder: str) -> list[str]:
@@ -813,8 +966,12 @@ def plot(results: dict, folder: str) -> list[str]:
     import matplotlib
     matplotlib.use("Agg")
     paths = results["paths"]
+    classical = planners(results)
     with reading(paths["classical"]):
-        written = plot_classical(results["classical"], folder)
+        written = plot_classical(classical, folder)
+    if "structured_eval" in classical:
+        with reading(paths["classical"] if "structured_eval" in results["classical"] else paths["structured"]):
+            written += plot_structured(classical["structured_eval"], folder)
     if results["rainbow_cpp"] is not None:
         with reading(paths["rainbow_cpp"]):
             written += plot_rainbow(results["rainbow_cpp"], results["classical"], folder)
@@ -829,17 +986,21 @@ def plot(results: dict, folder: str) -> list[str]:
 # ----------------------------------------------------------------------------- command line
 @dataclass
 class Collect:
-    """Run the experiments and write their JSON under --out (every part: ~25 min of planners, then the agents)."""
+    """Run the experiments and write their JSON under --out (every part: ~55 min of planners, then the agents)."""
     out: str = RESULTS
     """folder for the results JSON"""
     parts: tuple[str, ...] = tuple(PARTS)
-    """results to collect: classical (the planners), rainbow_cpp, rainbow_marl, tabular"""
+    """results to collect: classical (the planners, structured_eval and rollout included), structured (the planners
+    on structured_eval alone), rollout (the rollout planner alone on classical's cpp_eval and MovingAI maps),
+    rainbow_cpp, rainbow_marl, tabular"""
     reuse: bool = False
     """collect only the parts whose JSON is missing under --out"""
     per_size: int = 20
     """maps per cpp_eval size for the planner comparison (LKH takes seconds per map) and rainbow_cpp"""
     p2p_maps: int = 1000
     """p2p_eval scenarios for the point-to-point evaluation (of 10,000)"""
+    structured_per_band: int = classical_cpp.STRUCTURED_PER_BAND
+    """structured_eval maps per family and size band for the planners (classical, structured)"""
     quiet: bool = False
     """no progress bars"""
 

@@ -33,10 +33,14 @@ def restore_sigint():
 @pytest.fixture
 def small_report_maps(monkeypatch):
     """A function cutting the planner report's map subsets to a few small maps (cpp_eval sizes up to `max_size` in
-    two bands, two external episodes on empty-8-8, `layouts` marl_eval layouts), so that a report runs in seconds."""
-    cpp, ext, marl = cc.cpp_eval_subset, cc.external_episodes, cc.marl_eval_subset
+    two bands, two external episodes on empty-8-8, `layouts` marl_eval layouts, at most `structured` structured_eval
+    maps per family, of size 10), so that a report runs in seconds."""
+    cpp, ext, marl, structured_subset = cc.cpp_eval_subset, cc.external_episodes, cc.marl_eval_subset, \
+        cc.structured_eval_subset
 
-    def shrink(max_size: int, layouts: int) -> None:
+    def shrink(max_size: int, layouts: int, structured: int = 1) -> None:
+        monkeypatch.setattr(cc, "STRUCTURED_BANDS", ((10, 10),))
+        monkeypatch.setattr(cc, "structured_eval_subset", lambda per_band: structured_subset(min(per_band, structured)))
         def cpp_subset(per_size):
             scenarios, sizes = cpp(per_size)
             keep = np.flatnonzero(sizes <= max_size)

@@ -700,6 +700,8 @@ def test_bad_dataset_files_are_value_errors_naming_the_file(tmp_path, bad_maps):
 def test_report_flags_are_checked_before_anything_runs(tmp_path):
     with pytest.raises(ValueError, match="--per-size must be >= 1"):
         cc.main(cc.Args(report=True, per_size=0, out=str(tmp_path)))
+    with pytest.raises(ValueError, match="--structured-per-band must be >= 1"):
+        cc.main(cc.Args(report=True, structured_per_band=0, out=str(tmp_path)))
     (tmp_path / "file").write_text("x")
     with pytest.raises(ValueError, match="not a folder"):
         cc.main(cc.Args(report=True, out=str(tmp_path / "file")))
@@ -740,6 +742,71 @@ def test_report_writes_into_out_only(tmp_path, capsys, small_report_maps):
         assert entry["lower_bound_time_save"] <= min(entry["greedy"], entry["partition"])
     printed = capsys.readouterr().out
     assert cc.tables(saved) in printed and "| lkh |" in printed and "| empty-8-8.map | 0.000 |" in printed
+    st = saved["structured_eval"]  # the fixture: one size-10 map per family
+    assert st["per_band"] == cc.STRUCTURED_PER_BAND and st["bands"] == [[10, 10]]
+    assert st["maps"] == dict.fromkeys(gw.STRUCTURED_FAMILIES, 1) and list(st["planners"]) == list(cc.STRUCTURED_PLANNERS)
+    assert "| rollout |" in cc.structured_table(st) and cc.structured_table(st) in printed
+
+
+# ----------------------------------------------------------------------------- structured_eval in the report
+def test_structured_subset_picks_per_family_and_band():
+    data = np.load(ROOT / "maps" / "structured_eval.npz")
+    scenarios, families, sizes = cc.structured_eval_subset(3)
+    assert len(scenarios) == 3 * len(gw.STRUCTURED_FAMILIES) * len(cc.STRUCTURED_BANDS) == 48
+    for f in gw.STRUCTURED_FAMILIES:
+        picked = [sorted(sizes[(families == f) & (sizes >= a) & (sizes <= b)].tolist()) for a, b in cc.STRUCTURED_BANDS]
+        assert picked == [[11, 13, 15], [16, 18, 20], [21, 23, 25], [26, 28, 30]]  # spread over the band's sizes
+    first = np.flatnonzero((data["family"] == "maze") & (data["size"] == 13))[0]  # the first map of that size
+    s = scenarios[int(np.flatnonzero((families == "maze") & (sizes == 13))[0])]
+    assert s.obstacles.shape == (13, 13) and (s.obstacles == data["obstacles"][first][:13, :13]).all()
+    assert (s.starts[0] == data["starts"][first][0]).all()
+    for s in scenarios:  # the single-agent scenario: the first stored start, covered
+        assert s.starts.shape == (1, 2) and s.covered.sum() == 1 and s.covered[tuple(s.starts[0])]
+    many, fam, size = cc.structured_eval_subset(12)  # more than the band's sizes: the next maps of each size
+    keep = (fam == "rooms") & (size <= 15)
+    assert keep.sum() == 12 and sorted(np.unique(size[keep], return_counts=True)[1].tolist()) == [2] * 6
+    assert len({m.obstacles.tobytes() + m.starts.tobytes() for m, k in zip(many, keep) if k}) == 12
+
+
+def test_compare_structured_by_family_and_band(small_report_maps):
+    small_report_maps(7, 1, structured=2)
+    st = cc.compare_structured(3, quiet=True)
+    assert st["maps"] == dict.fromkeys(gw.STRUCTURED_FAMILIES, 2) and st["bands"] == [[10, 10]]
+    assert list(st["planners"]) == list(cc.STRUCTURED_PLANNERS)
+    for r in st["planners"].values():
+        assert list(r) == [*gw.STRUCTURED_FAMILIES, "all"]
+        for v in r.values():
+            assert v["completion"] == 1.0 and v["by_band"] == {"10-10": v["overlap"]} and v["plan_ms_per_map"] >= 0
+        assert r["all"]["overlap"] == pytest.approx(np.mean([r[f]["overlap"] for f in gw.STRUCTURED_FAMILIES]), abs=1e-3)
+    lkh, rollout = st["planners"]["lkh"], st["planners"]["rollout"]
+    assert lkh["all"]["overlap"] <= rollout["all"]["overlap"] <= st["planners"]["greedy-dead-ends"]["all"]["overlap"]
+    for bad in (0, -1):
+        with pytest.raises(ValueError, match="--structured-per-band must be >= 1"):
+            cc.compare_structured(bad)
+        with pytest.raises(ValueError, match="--structured-per-band must be >= 1"):
+            cc.compare(1, structured_per_band=bad)
+
+
+def test_compare_rollout_is_compare_for_rollout_alone(small_report_maps):
+    small_report_maps(7, 1)
+    ro = cc.compare_rollout(1, quiet=True)
+    assert ro["planners"] == ["rollout"] and ro["per_size"] == 1 and list(ro["cpp_eval"]) == ["rollout"]
+    scenarios, sizes = cc.cpp_eval_subset(1)
+    rows, _ = cc.evaluate("rollout", scenarios)
+    assert ro["cpp_eval"]["rollout"]["5-6"] == round(float(np.mean([r["overlap"] for r, z in zip(rows, sizes) if z <= 6])), 4)
+    assert list(ro["cpp_eval"]["rollout"]) == ["plan_ms_per_map", "all", "5-6", "7-7"]
+    assert ro["external"] == {"empty-8-8.map": {"rollout": [0.0, 0.0]}}
+    with pytest.raises(ValueError, match="--per-size must be >= 1"):
+        cc.compare_rollout(0)
+
+
+def test_replay_can_report_an_incomplete_path():
+    s = make(np.zeros((1, 3)), [[0, 0]])
+    short = [np.array([[0, 0], [0, 1]])]
+    with pytest.raises(ValueError, match="1 free cells uncovered"):
+        cc.replay(s, short)
+    assert cc.replay(s, short, complete=False)["completed"] is False
+    assert cc.replay(s, [np.array([[0, 0], [0, 1], [0, 2]])], complete=False)["completed"] is True
 
 
 def test_evaluate_moves_the_bar_and_times_the_planning():

@@ -103,8 +103,9 @@ def test_render_types_no_provenance_by_hand():
     for typed in ("issue #", "on a 2-core CPU machine", "one core of a 2-core CPU", "evaluate.py report",
                   "15,000 steps each", "K = 0.25", "no camera stages trained"):
         assert typed not in text
-    # the committed results JSON predate provenance: every such cell says so
-    rows = [r for r in _table_rows(text) if r.startswith("| `")]
+    # the committed results JSON of the first four parts predate provenance: every such cell says so
+    legacy = ("classical_cpp.json", "rainbow_cpp.json", "rainbow_marl.json", os.path.join("tabular", "fig5_5.json"))
+    rows = [r for r in _table_rows(text) if r.startswith(tuple(f"| `{rel}` |" for rel in legacy))]
     assert len(rows) == 4 and all(r.count("not recorded") == 7 for r in rows)
 
 
@@ -157,9 +158,175 @@ def test_missing_learned_parts_say_not_collected():
     results = _committed()
     results["rainbow_cpp"] = results["rainbow_marl"] = results["tabular"] = None
     text = report.render(results)
-    assert text.count("*Not collected:*") == 3 + 1 + 1  # rainbow's three sections, marl's, tabular's Fig. 5.5
+    structured = "structured_eval" not in report.planners(results)  # "Not collected" too while it is missing
+    assert text.count("*Not collected:*") == 3 + 1 + 1 + structured  # rainbow's three sections, marl's, tabular's Fig. 5.5
     assert "`python report.py collect --parts rainbow_marl`" in text
     assert "**Fig. 5.4**" in text  # the training runs are there all the same
+
+
+# ----------------------------------------------------------------------------- structured_eval and rollout
+def _structured(overlap: dict) -> dict:
+    """A planners_structured.json: per planner the mean overlap of each family (rooms, corridors, clutter, maze)."""
+    families = list(gw.STRUCTURED_FAMILIES)
+
+    def entry(o, ms):
+        return {"overlap": o, "completion": 1.0, "plan_ms_per_map": ms, "by_band": {"10-15": o, "16-20": o}}
+
+    return {"structured_eval": {"per_band": 3, "bands": [[10, 15], [16, 20]], "lkh_time_limit_s": 10.0,
+                                "maps": dict.fromkeys(families, 6), "planners": {
+        name: {**{f: entry(v, 1.0) for f, v in zip(families, o)}, "all": entry(round(float(np.mean(o)), 4), 1.0)}
+        for name, o in overlap.items()}}}
+
+
+STRUCTURED = _structured({"greedy": [0.2, 0.1, 0.3, 0.6], "wavefront": [0.15, 0.0, 0.2, 0.5],
+                          "rollout": [0.1, 0.0, 0.25, 0.45], "lkh": [0.05, 0.0, 0.02, 0.21]})
+
+
+def _with_new_parts(results: dict, structured: dict = STRUCTURED) -> dict:
+    """`results` with a planners_structured.json and a rollout.json (rollout: half greedy's overlap everywhere)."""
+    results = json.loads(json.dumps(results))
+    c = results["classical"]
+    results["structured"] = json.loads(json.dumps(structured))
+    results["rollout"] = {"per_size": c["per_size"], "planners": ["rollout"], "cpp_eval": {"rollout": {
+        k: v if k == "plan_ms_per_map" else round(v / 2, 4) for k, v in c["cpp_eval"]["greedy"].items()}},
+        "external": {m: {"rollout": [x / 2 for x in per["greedy"]]} for m, per in c["external"].items()}}
+    results["paths"].update(structured="x/planners_structured.json", rollout="x/rollout.json")
+    return results
+
+
+def _without_new_parts(results: dict) -> dict:
+    results = json.loads(json.dumps(results))
+    results["structured"] = results["rollout"] = None
+    results["classical"].pop("structured_eval", None)
+    for per in (results["classical"]["cpp_eval"], *results["classical"]["external"].values()):
+        per.pop("rollout", None)
+    return results
+
+
+def test_headline_is_unchanged_without_the_new_parts():
+    old = _without_new_parts(_committed())
+    lines = report.headline(old)
+    assert lines[0].startswith("| mean overlap $O_v$ (lower is better) | cpp_eval (20 maps a size, 5-30) | "
+                               "MovingAI (9 maps, 3 starts each) |\n|---|---|---|\n")
+    assert "structured_eval" not in "\n".join(lines) and "| rollout |" not in "\n".join(lines)
+    # what the headline was before the new parts: the same rows from classical_cpp.json alone
+    legacy = {k: v for k, v in old.items() if k not in ("structured", "rollout")}
+    assert report.headline(legacy) == lines
+    with_rollout = _with_new_parts(old)
+    with_rollout["structured"] = None
+    assert report.headline(with_rollout) == lines  # rollout.json alone leaves the headline as it was
+
+
+def test_headline_gets_a_structured_column_when_there_is_one():
+    results = _with_new_parts(_without_new_parts(_committed()))
+    table = report.headline(results)[0].splitlines()
+    assert table[0].endswith("| structured_eval (24 maps, 4 families) |") and table[1] == "|---|---|---|---|"
+    rows = {r.split(" | ")[0][2:]: r for r in table[2:]}
+    assert rows["rainbow_cpp (shipped, + heuristic fallback)"].endswith(" | — |")  # not evaluated there
+    assert rows["greedy-dead-ends (its teacher)"].endswith("| — | — |")  # not in this structured_eval
+    assert rows["greedy"].endswith(" | 0.300 |") and rows["lkh"].endswith(" | 0.070 |")
+    assert list(rows)[-2:] == ["rollout", "lkh"] and rows["rollout"].endswith(" | 0.200 |")
+    greedy = results["classical"]["cpp_eval"]["greedy"]["all"]
+    assert rows["rollout"].startswith(f"| rollout | {round(greedy / 2, 4):.3f} |")
+    results["rainbow_cpp"]["structured_eval"] = {"all": {"overlap": 0.1234}}
+    assert report.headline(results)[0].splitlines()[2].endswith(" | 0.123 |")
+
+
+def test_structured_table_and_rollouts_gap_to_lkh_are_generated_from_the_numbers():
+    text = report.render(_with_new_parts(_committed()))
+    section = text[text.index("## Structured maps (planners)"):text.index("## Sensor-based")]
+    assert "| planner | rooms | corridors | clutter | maze | all | completed | plan ms/map |" in section
+    assert "| rollout | 0.100 | 0.000 | 0.250 | 0.450 | 0.200 | 100% | 1.0 |" in section
+    assert ("Rollout is below every other planner but LKH (greedy, wavefront) in 2 of 4 families; tied in corridors "
+            "(wavefront also 0.000); above in clutter (wavefront 0.200 against 0.250); completion 100% in every "
+            "family.") in section
+    assert ("Rollout's gap to LKH (mean overlap, rollout − LKH): rooms +0.050 (0.100 against 0.050, 2.0×); "
+            "corridors +0.000 (0.000 against 0.000); clutter +0.230 (0.250 against 0.020, 12.5×); maze +0.240 "
+            "(0.450 against 0.210, 2.1×); all maps +0.130. Largest in maze, smallest in corridors.") in section
+    assert "| planner | 10-15 | 16-20 | all |" in section and "| lkh | 0.070 | 0.070 | 0.070 |" in section
+    assert f"({report.FIGURES['planners_structured']})" in section
+    comparison = text[text.index("## Comparison with classical"):]
+    assert "| rollout | " in comparison and "rollout: from `rollout.json`" in comparison
+    assert "| map | greedy | boustrophedon | spiral-stc | wavefront | rollout | lkh |" in comparison
+    bare = report.render(_without_new_parts(_committed()))
+    assert "*Not collected:* no `structured_eval`" in bare and "| rollout |" not in bare
+
+
+def test_classical_cpp_json_wins_over_the_separate_files():
+    results = _with_new_parts(_committed())
+    c = results["classical"]
+    c["structured_eval"] = _structured({"greedy": [0.5, 0.5, 0.5, 0.5]})["structured_eval"]
+    c["cpp_eval"]["rollout"] = dict(c["cpp_eval"]["lkh"])
+    for per in c["external"].values():
+        per["rollout"] = list(per["lkh"])
+    merged = report.planners(results)
+    assert merged["structured_eval"] == c["structured_eval"] and merged["cpp_eval"]["rollout"] == c["cpp_eval"]["lkh"]
+    assert "filled_in" not in merged and "filled_in" not in c  # nothing taken from rollout.json; results untouched
+    filled = report.planners(_with_new_parts(_without_new_parts(_committed())))
+    assert list(filled["cpp_eval"])[-2:] == ["rollout", "lkh"] and filled["filled_in"]["planners"] == ["rollout"]
+
+
+def test_render_with_the_new_parts_is_pure_and_they_plot(tmp_path, monkeypatch):
+    results = _with_new_parts(_without_new_parts(_committed()))
+    before = json.dumps(results)
+    first = report.render(results)
+    assert json.dumps(results) == before  # render reads, never edits, the results
+
+    def forbidden(*a, **k):
+        raise AssertionError("render must not run anything, read the clock or ask git")
+
+    for name in ("compare", "compare_structured", "compare_rollout"):
+        monkeypatch.setattr(report.classical_cpp, name, forbidden)
+    monkeypatch.setattr(report.time, "time", forbidden)
+    monkeypatch.setattr(report, "open", forbidden, raising=False)
+    assert report.render(json.loads(before)) == first
+    monkeypatch.undo()
+    written = report.plot(results, str(tmp_path))
+    assert str(tmp_path / report.FIGURES["planners_structured"]) in written
+    assert (tmp_path / report.FIGURES["planners_structured"]).stat().st_size > 10_000
+    bare = tmp_path / "bare"
+    bare.mkdir()
+    assert not any("planners_structured" in w for w in report.plot(_without_new_parts(_committed()), str(bare)))
+
+
+def test_bad_new_part_json_is_a_value_error_naming_it(tmp_path):
+    results = _with_new_parts(_without_new_parts(_committed()))
+    del results["rollout"]["external"]
+    with pytest.raises(ValueError, match=re.escape("x/rollout.json") + ".*KeyError: 'external'"):
+        report.render(results)
+    results = _with_new_parts(_without_new_parts(_committed()))
+    del results["structured"]["structured_eval"]["maps"]
+    with pytest.raises(ValueError, match=re.escape("x/planners_structured.json") + ".*KeyError: 'maps'"):
+        report.render(results)
+
+
+def test_structured_and_rollout_parts_are_collected_with_classical(tmp_path, capsys):
+    parts = report.parts_to_collect(report.Collect(out=str(tmp_path), parts=("structured", "classical", "rollout")))
+    assert parts == ["classical"] and "structured: collected with classical" in capsys.readouterr().out
+    c = json.loads((RESULTS / "classical_cpp.json").read_text())
+    c.pop("structured_eval", None)
+    (tmp_path / "classical_cpp.json").write_text(json.dumps(c))
+    reuse = report.Collect(out=str(tmp_path), parts=("classical", "structured", "rollout"), reuse=True)
+    assert report.parts_to_collect(reuse) == ["structured", "rollout"]  # classical is there, without them
+    c["structured_eval"] = {}
+    c["cpp_eval"]["rollout"] = {}
+    (tmp_path / "classical_cpp.json").write_text(json.dumps(c))
+    assert report.parts_to_collect(reuse) == []
+
+
+def test_collect_structured_and_rollout_on_tiny_maps(tmp_path, small_report_maps):
+    small_report_maps(7, 1, structured=1)
+    out = tmp_path / "new"
+    written = report.main(report.Collect(out=str(out), parts=("structured", "rollout"), per_size=1, quiet=True))
+    assert written == ["planners_structured.json", "rollout.json"]
+    st = json.loads((out / "planners_structured.json").read_text())
+    assert st["structured_eval"]["maps"] == dict.fromkeys(gw.STRUCTURED_FAMILIES, 1)
+    assert list(st["structured_eval"]["planners"]) == list(cc.STRUCTURED_PLANNERS)
+    assert st["provenance"]["flags"]["structured_per_band"] == cc.STRUCTURED_PER_BAND
+    ro = json.loads((out / "rollout.json").read_text())
+    assert list(ro["cpp_eval"]) == ["rollout"] and ro["external"] == {"empty-8-8.map": {"rollout": [0.0, 0.0]}}
+    text = "\n".join(report.structured_lines(st["structured_eval"]))
+    assert "\n| rollout | " in text and "Rollout's gap to LKH" in text
 
 
 # ----------------------------------------------------------------------------- render / plot commands
@@ -184,7 +351,8 @@ def test_all_with_reuse_runs_nothing_when_every_json_is_there(tmp_path, monkeypa
     def forbidden(*a, **k):
         raise AssertionError("--reuse must not re-run a part whose JSON is there")
 
-    monkeypatch.setattr(cc, "compare", forbidden)
+    for name in ("compare", "compare_structured", "compare_rollout"):
+        monkeypatch.setattr(cc, name, forbidden)
     for name in ("rainbow_results", "marl_results", "tabular_results"):
         monkeypatch.setattr(report, name, forbidden)
     jsons = {k: v for k, v in _hashes(out).items() if k.endswith(".json")}
@@ -199,7 +367,8 @@ def test_a_part_whose_model_is_not_trained_is_skipped(tmp_path, monkeypatch, cap
     assert report.parts_to_collect(args) == ["classical"]
     assert "rainbow_marl: skipped" in capsys.readouterr().out
     shutil.copy(RESULTS / "classical_cpp.json", tmp_path / "classical_cpp.json")
-    assert report.parts_to_collect(report.Collect(out=str(tmp_path), reuse=True)) == ["rainbow_cpp", "tabular"]
+    assert report.parts_to_collect(report.Collect(out=str(tmp_path), reuse=True)) == [
+        "structured", "rollout", "rainbow_cpp", "tabular"]  # the committed classical_cpp.json holds neither
 
 
 # ----------------------------------------------------------------------------- collect, on tiny settings
@@ -246,7 +415,7 @@ def test_all_on_tiny_settings_writes_into_out_only(tiny):
     out = tiny / "report"
     written = report.main(report.All(out=str(out), per_size=1, p2p_maps=2, quiet=True))
     assert _hashes(RESULTS) == committed  # `--out DIR` never touches the committed results
-    jsons = sorted(report.PARTS.values())
+    jsons = sorted(f for part, f in report.PARTS.items() if part not in report.IN_CLASSICAL)  # those: in classical
     assert written == sorted(["RESULTS.md", *jsons, *[f for k, f in report.FIGURES.items() if k != "fig5_4"]])
     assert not _leftovers(tiny) and not _leftovers(out)
     commit = report._git("rev-parse", "HEAD")
@@ -255,9 +424,11 @@ def test_all_on_tiny_settings_writes_into_out_only(tiny):
         p = data["provenance"]
         assert p["git_commit"] == commit and p["cores"] == os.cpu_count() and p["cpu"] == report._cpu()
         assert p["wall_seconds"] >= 0 and re.fullmatch(r"\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d\+00:00", p["date"])
-        assert p["flags"] == {"parts": list(report.PARTS), "reuse": False, "per_size": 1, "p2p_maps": 2}
+        assert p["flags"] == {"parts": list(report.PARTS), "reuse": False, "per_size": 1, "p2p_maps": 2,
+                              "structured_per_band": cc.STRUCTURED_PER_BAND}
     classical = json.loads((out / "classical_cpp.json").read_text())
     assert list(classical["cpp_eval"]["greedy"]) == ["plan_ms_per_map", "all", "5-6", "7-7"]
+    assert classical["structured_eval"]["maps"] == dict.fromkeys(gw.STRUCTURED_FAMILIES, 1)  # the fixture's
     rb = json.loads((out / "rainbow_cpp.json").read_text())
     assert sorted(rb["full"], key=int) == ["5", "6", "7"] and rb["p2p"]["maps"] == 2 and rb["model"]["stage"] == "tiny"
     assert all(v["completion"] == 1.0 for v in rb["full"].values())  # the heuristic finishes what the net cannot
@@ -297,6 +468,7 @@ def test_a_failing_collect_leaves_out_as_it_was(tiny, monkeypatch):
     (dict(per_size=0), "--per-size must be >= 1, got 0"),
     (dict(per_size=-3), "--per-size must be >= 1"),
     (dict(p2p_maps=0), "--p2p-maps must be >= 1"),
+    (dict(structured_per_band=0), "--structured-per-band must be >= 1, got 0"),
 ])
 def test_bad_collect_flags_are_value_errors_and_write_nothing(tmp_path, kw, message):
     with pytest.raises(ValueError, match=re.escape(message)):
