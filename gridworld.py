@@ -214,20 +214,14 @@ class EnvConfig:
         unknown = set(d) - {f.name for f in dataclasses.fields(cls)}
         if unknown:
             raise ValueError(f"unknown environment setting(s): {sorted(unknown)}")
-        if not isinstance(d.get("reward", RewardParams()), (dict, RewardParams)):
-            raise ValueError(f"reward must be a mapping of RewardParams fields, got {d['reward']!r}")
-        if isinstance(d.get("reward"), dict):
-            bad = set(d["reward"]) - {f.name for f in dataclasses.fields(RewardParams)}
-            if bad:
-                raise ValueError(f"unknown reward setting(s): {sorted(bad)}")
-            d["reward"] = RewardParams(**d["reward"])
-        if not isinstance(d.get("family", FamilyParams()), (dict, FamilyParams)):
-            raise ValueError(f"family must be a mapping of FamilyParams fields, got {d['family']!r}")
-        if isinstance(d.get("family"), dict):
-            bad = set(d["family"]) - {f.name for f in dataclasses.fields(FamilyParams)}
-            if bad:
-                raise ValueError(f"unknown map family setting(s): {sorted(bad)}")
-            d["family"] = FamilyParams(**d["family"])
+        for key, kind, label in (("reward", RewardParams, "reward"), ("family", FamilyParams, "map family")):
+            if not isinstance(d.get(key, kind()), (dict, kind)):
+                raise ValueError(f"{key} must be a mapping of {kind.__name__} fields, got {d[key]!r}")
+            if isinstance(d.get(key), dict):
+                bad = set(d[key]) - {f.name for f in dataclasses.fields(kind)}
+                if bad:
+                    raise ValueError(f"unknown {label} setting(s): {sorted(bad)}")
+                d[key] = kind(**d[key])
         return cls(**d)
 
     def replace(self, **changes) -> EnvConfig:

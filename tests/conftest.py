@@ -53,3 +53,14 @@ def small_report_maps(monkeypatch):
             x[:layouts] for x in marl(agents, every)))
 
     return shrink
+
+
+def one_line_error(result, *words) -> str:
+    """A failed CLI run's stderr: one `error: ...` line, no traceback, naming every word given."""
+    assert result.returncode != 0
+    assert "Traceback" not in result.stderr
+    err = result.stderr.strip()
+    assert err.startswith("error: ") and "\n" not in err, err
+    for w in words:
+        assert w in err, err
+    return err

@@ -23,6 +23,8 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
+from conftest import one_line_error as _one_line_error  # noqa: E402
+
 import classical_cpp as cc  # noqa: E402
 import gridworld as gw  # noqa: E402
 
@@ -641,16 +643,6 @@ def test_cli_single_agent_planner_with_several_agents_is_a_one_line_error():
     err = r.stderr.strip()
     assert "Traceback" not in r.stderr
     assert err.startswith("error: ") and "\n" not in err and "single-agent" in err, err
-
-
-def _one_line_error(r, *words):
-    assert r.returncode != 0
-    assert "Traceback" not in r.stderr
-    err = r.stderr.strip()
-    assert err.startswith("error: ") and "\n" not in err, err
-    for w in words:
-        assert w in err, err
-    return err
 
 
 def _args(**kw) -> cc.Args:

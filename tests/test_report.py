@@ -23,6 +23,8 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
+from conftest import one_line_error as _one_line_error  # noqa: E402
+
 import classical_cpp as cc  # noqa: E402
 import evaluate  # noqa: E402
 import gridworld as gw  # noqa: E402
@@ -57,16 +59,6 @@ def _leftovers(folder: Path) -> list[str]:
 def _cli(script: str, *args, timeout=120):
     return subprocess.run([sys.executable, script, *args], cwd=ROOT, capture_output=True, text=True, timeout=timeout,
                           env={**os.environ, "OMP_NUM_THREADS": "1"})
-
-
-def _one_line_error(r, *words):
-    assert r.returncode != 0
-    assert "Traceback" not in r.stderr
-    err = r.stderr.strip()
-    assert err.startswith("error: ") and "\n" not in err, err
-    for w in words:
-        assert w in err, err
-    return err
 
 
 # ----------------------------------------------------------------------------- render: pure, from the JSON
