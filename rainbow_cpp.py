@@ -94,6 +94,9 @@ class Args:
     """multiply every stage's base_steps (Tables 6.2 and 6.3 are 31 M steps each)"""
     total_steps: int = 0
     """stop after this many environment steps (0: the whole schedule)"""
+    time_limit: float = 0.0
+    """stop after this many minutes of training wall time, resumed time included (0: no limit); for comparisons at
+    equal CPU time"""
     num_envs: int = 16
     """worlds acted in together (one forward pass for all)"""
     buffer_size: int = 1_000_000
@@ -166,6 +169,22 @@ class Args:
     imitation is on-policy (DAgger-like); 0 keeps the dissertation's recipe"""
     margin: float = 0.8
     """the margin l(a_E, a) by which the heuristic's action must beat every other action"""
+    td_weight: float = 1.0
+    """weight of the TD loss (0: imitation alone, the margin-only arm of the ablation in docs/rainbow_cpp.md);
+    priorities still follow the TD errors"""
+    margin_loss_end: float | None = None
+    """the margin loss's weight after --margin-decay-steps, reached linearly from --margin-loss (default: no
+    schedule), so TD can refine what imitation taught"""
+    margin_decay_steps: int = 0
+    """environment steps (of the whole run, resumed ones included) over which the margin loss's weight moves
+    from --margin-loss to --margin-loss-end"""
+    hint: bool = False
+    """give the network the deterministic heuristic's move (a one-hot beside the extras, computed by the agent
+    from its own observation; not in the dissertation), so copying the heuristic is trivial and capacity goes
+    to the states where its move is a mistake; a model trained with it keeps it"""
+    departure_weight: float = 1.0
+    """with --hint, the weight in the margin loss of a state whose label differs from the hint (the teacher's
+    rare departures from the heuristic: ~1% of the rollout's labels)"""
     heuristic_random_ties: bool = False
     """the heuristic breaks ties at random (§6.3.1) instead of by the first cell; the random walk
     overlaps ~4x more (README), so it makes a poorer teacher"""
@@ -213,6 +232,7 @@ MOVES = gridworld.WAIT  # the learned actions are the four moves; WAIT is "no ac
 DISSERTATION = {"hidden": 512, "frame_stack": 3}  # Fig. 6.8's stream width and §6.3.2.7's frames
 NETWORKS = ("fig6.8", "compact")  # --network: Fig. 6.8 over the deep observation, or the compact one over the multiscale
 SCALE_KEYS = ("scales", "scale_factor", "scale_view")  # the multiscale observation's settings (EnvConfig fields)
+HINTS = LAST_ACTIONS  # --hint: the heuristic's proposed move, one-hot with WAIT (no target) as in the last action
 COMPACT = {"hidden": 256, "frame_stack": 3, "conv_width": 32,
            **{k: getattr(gridworld.EnvConfig(), k) for k in SCALE_KEYS}}  # the compact network's defaults
 CHECKPOINT_KEYS = ("model", "optimizer", "global_step", "stage", "wall", "numpy_rng", "torch_rng")
@@ -255,16 +275,16 @@ class NoisyLinear(nn.Module):
 class QNetwork(nn.Module):
     """Fig. 6.8: three convolutions over the stacked maps, then dueling noisy streams."""
 
-    def __init__(self, frames: int, view: int, hidden: int, sigma0: float):
+    def __init__(self, frames: int, view: int, hidden: int, sigma0: float, hint: bool = False):
         super().__init__()
-        self.frames, self.view, self.hidden = frames, view, hidden
+        self.frames, self.view, self.hidden, self.hint = frames, view, hidden, hint
         self.conv = nn.Sequential(
             nn.Conv2d(CHANNELS * frames, 32, 3, 1, 1), nn.ReLU(),
             nn.Conv2d(32, 64, 3, 2), nn.ReLU(),
             nn.Conv2d(64, 64, 3, 2), nn.ReLU(), nn.Flatten())
         with torch.no_grad():
             n_conv = self.conv(torch.zeros(1, CHANNELS * frames, view, view)).shape[1]
-        n_in = n_conv + 1 + frames * EXTRAS  # battery, then last action and out-of-bounds of every frame
+        n_in = n_conv + 1 + frames * EXTRAS + HINTS * hint  # battery, every frame's extras, the hint
         self.value = nn.ModuleList([NoisyLinear(n_in, hidden, sigma0), NoisyLinear(hidden, hidden, sigma0),
                                     NoisyLinear(hidden, 1, sigma0)])
         self.advantage = nn.ModuleList([NoisyLinear(n_in, hidden, sigma0), NoisyLinear(hidden, hidden, sigma0),
@@ -272,9 +292,9 @@ class QNetwork(nn.Module):
 
     def network(self) -> dict:
         """What a saved copy needs to be rebuilt and fed: network kind, frames, hidden width, view, extras,
-        observation kind."""
+        observation kind, whether it takes the heuristic's move (hint)."""
         return {"network": "fig6.8", "frames": self.frames, "hidden": self.hidden, "view": self.view,
-                "extras": EXTRAS, "observation": "deep"}
+                "extras": EXTRAS, "observation": "deep", "hint": self.hint}
 
     def reset_noise(self, on: bool = True):
         for m in self.modules():
@@ -294,9 +314,9 @@ class CompactQNetwork(nn.Module):
 
     def __init__(self, frames: int, hidden: int, sigma0: float, conv_width: int = COMPACT["conv_width"],
                  scales: int = COMPACT["scales"], scale_factor: int = COMPACT["scale_factor"],
-                 scale_view: int = COMPACT["scale_view"]):
+                 scale_view: int = COMPACT["scale_view"], hint: bool = False):
         super().__init__()
-        self.frames, self.hidden, self.conv_width = frames, hidden, conv_width
+        self.frames, self.hidden, self.conv_width, self.hint = frames, hidden, conv_width, hint
         self.scales, self.scale_factor, self.scale_view = scales, scale_factor, scale_view
         self.view = scale_view
         channels, _ = frame_shape({"observation": "multiscale", "scales": scales, "scale_factor": scale_factor,
@@ -309,7 +329,7 @@ class CompactQNetwork(nn.Module):
             layers += [nn.Conv2d(n_in, scales * conv_width, 3, stride, pad, groups=scales), nn.ReLU()]
             n_in, size = scales * conv_width, (size + 2 * pad - 3) // stride + 1
         self.conv = nn.Sequential(*layers, nn.Flatten())
-        n_in = scales * conv_width * size * size + 1 + frames * EXTRAS
+        n_in = scales * conv_width * size * size + 1 + frames * EXTRAS + HINTS * hint
         self.value = nn.ModuleList([NoisyLinear(n_in, hidden, sigma0), NoisyLinear(hidden, hidden, sigma0),
                                     NoisyLinear(hidden, 1, sigma0)])
         self.advantage = nn.ModuleList([NoisyLinear(n_in, hidden, sigma0), NoisyLinear(hidden, hidden, sigma0),
@@ -320,7 +340,7 @@ class CompactQNetwork(nn.Module):
         multiscale settings)."""
         return {"network": "compact", "frames": self.frames, "hidden": self.hidden, "conv_width": self.conv_width,
                 "view": self.view, "extras": EXTRAS, "observation": "multiscale", "scales": self.scales,
-                "scale_factor": self.scale_factor, "scale_view": self.scale_view}
+                "scale_factor": self.scale_factor, "scale_view": self.scale_view, "hint": self.hint}
 
     def reset_noise(self, on: bool = True):
         for m in self.modules():
@@ -348,9 +368,9 @@ def dueling(x: torch.Tensor, value: nn.ModuleList, advantage: nn.ModuleList) -> 
 def build_network(spec: dict, sigma0: float) -> nn.Module:
     """The network a spec describes (network_of's, or a network() record): Fig. 6.8's or the compact one."""
     if spec.get("network", "fig6.8") == "fig6.8":
-        return QNetwork(spec["frames"], spec["view"], spec["hidden"], sigma0)
+        return QNetwork(spec["frames"], spec["view"], spec["hidden"], sigma0, bool(spec.get("hint")))
     return CompactQNetwork(spec["frames"], spec["hidden"], sigma0, spec["conv_width"],
-                           *(spec[k] for k in SCALE_KEYS))
+                           *(spec[k] for k in SCALE_KEYS), bool(spec.get("hint")))
 
 
 def observation_settings(spec: dict) -> dict:
@@ -422,10 +442,10 @@ class Replay:
     and next states are neighbouring slots of the same stream. A frame of the deep observation: the map
     bit-packed (841 bytes for 4x41x41) plus the four compressed edge lines raw, out-of-bounds, last action and
     battery; with `channels` (the multiscale observation, whose block means are not binary) the map is kept as
-    it is, uint8 (1,815 bytes for 15x11x11)."""
+    it is, uint8 (1,815 bytes for 15x11x11). With `hint` also the heuristic's move at each frame."""
 
     def __init__(self, capacity: int, worlds: int, view: int, frames: int, n_step: int, gamma: float,
-                 alpha: float, channels: int | None = None):
+                 alpha: float, channels: int | None = None, hint: bool = False):
         self.cap, self.worlds, self.V, self.k = capacity // worlds, worlds, view, frames
         self.n_step, self.gamma, self.alpha = n_step, gamma, alpha
         self.C, self.packed = channels or CHANNELS, channels is None
@@ -439,7 +459,8 @@ class Replay:
         self.last = np.zeros(size, np.int8)
         self.battery = np.zeros(size, np.float16)
         self.action = np.zeros(size, np.int8)
-        self.label = np.full(size, -1, np.int8)  # the heuristic's action here (-1: none)
+        self.label = np.full(size, -1, np.int8)  # the teacher's action here (-1: none)
+        self.hint = np.full(size, MOVES, np.int8) if hint else None  # the heuristic's move here (--hint)
         self.reward = np.zeros(size, np.float32)
         self.terminal = np.zeros(size, bool)  # the transition from this slot terminates
         self.final = np.zeros(size, bool)  # the frame ends its episode (no action taken here)
@@ -454,7 +475,7 @@ class Replay:
         maps = (self.bits, self.edges) if self.packed else (self.maps,)
         return sum(a.itemsize * int(np.prod(a.shape[1:])) for a in
                    (*maps, self.oob, self.last, self.battery, self.action, self.label,
-                    self.reward, self.terminal, self.final, self.age)) + 16  # + sum-tree leaf
+                    self.reward, self.terminal, self.final, self.age)) + 16 + (self.hint is not None)  # + sum-tree leaf
 
     def add_frames(self, worlds: np.ndarray, obs: dict, age: np.ndarray, final: np.ndarray) -> np.ndarray:
         """Write the current frame of each stream; returns the slots written."""
@@ -472,6 +493,8 @@ class Replay:
         self.oob[slot] = obs["out_of_bounds"]
         self.last[slot] = obs["last_action"].argmax(1)
         self.battery[slot] = obs["battery"][:, 0]
+        if self.hint is not None:
+            self.hint[slot] = obs["hint"]
         self.age[slot], self.final[slot] = age, final
         self.tree.update(slot, np.zeros(len(slot)))  # no successor yet
         ahead = worlds * self.cap + (self.pointer[worlds] + np.arange(1, self.k)[:, None]) % self.cap
@@ -490,8 +513,8 @@ class Replay:
         self.label[slot] = -1 if label is None else np.where(label < MOVES, label, -1)  # WAIT is no move to learn
 
     def _frames(self, slot: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Stacked maps (n, Ck, V, V) uint8 (C = 4 channels a deep frame) and extras (n, 1 + 13k) for frames
-        ending at slot."""
+        """Stacked maps (n, Ck, V, V) uint8 (C = 4 channels a deep frame) and extras (n, 1 + 13k, + 5 with the
+        hint of the last frame) for frames ending at slot."""
         V, k = self.V, self.k
         base, pos = slot // self.cap * self.cap, slot % self.cap
         back = np.minimum(self.age[slot][:, None], np.arange(k - 1, -1, -1))  # stay in the episode
@@ -505,9 +528,10 @@ class Replay:
             maps = self.maps[flat]
         last = np.eye(LAST_ACTIONS, dtype=np.float32)[self.last[flat]]
         oob = self.oob[flat].astype(np.float32).reshape(len(flat), -1) / OUT_OF_BOUNDS_SCALE
-        extras = np.concatenate([self.battery[slot].astype(np.float32)[:, None],
-                                 np.concatenate([last, oob], 1).reshape(len(slot), -1)], 1)
-        return maps.reshape(len(slot), self.C * k, V, V), extras
+        extras = [self.battery[slot].astype(np.float32)[:, None], np.concatenate([last, oob], 1).reshape(len(slot), -1)]
+        if self.hint is not None:
+            extras.append(np.eye(HINTS, dtype=np.float32)[self.hint[slot]])
+        return maps.reshape(len(slot), self.C * k, V, V), np.concatenate(extras, 1)
 
     def sample(self, n: int, beta: float, rng: np.random.Generator):
         slot = self.tree.sample(n, rng)
@@ -539,12 +563,15 @@ class Replay:
     def batch(self, n: int, beta: float, rng: np.random.Generator, device: torch.device,
               labels: bool = False) -> tuple[np.ndarray, list[torch.Tensor]]:
         """sample() as tensors on `device`: the slots, then [maps, extras, next maps, next extras, actions,
-        returns, bootstrap factors, importance weights (float32)] and with `labels` the heuristic's actions
-        (int64, -1: none). One copy to a GPU per batch (hand_over); on the CPU the sampled arrays themselves."""
+        returns, bootstrap factors, importance weights (float32)] and with `labels` the teacher's actions
+        (int64, -1: none), then with a hint the heuristic's moves (int64). One copy to a GPU per batch (hand_over);
+        on the CPU the sampled arrays themselves."""
         slot, (m, e), a, ret, (nm, ne), boot, weight = self.sample(n, beta, rng)
         arrays = [m, e, nm, ne, a, ret, boot, weight.astype(np.float32)]
         if labels:
             arrays.append(self.label[slot].astype(np.int64))
+            if self.hint is not None:
+                arrays.append(self.hint[slot].astype(np.int64))
         tensors, self.pinned = hand_over(arrays, device, self.pinned)
         return slot, tensors
 
@@ -580,10 +607,11 @@ class Stacker:
     """The last k frames of every stream (a world, or one agent of a world), for acting (the replay rebuilds
     its own)."""
 
-    def __init__(self, streams: int, k: int, view: int, channels: int = CHANNELS):
+    def __init__(self, streams: int, k: int, view: int, channels: int = CHANNELS, hint: bool = False):
         self.maps = np.zeros((streams, k, channels, view, view), np.uint8)
         self.extra = np.zeros((streams, k, EXTRAS), np.float32)
         self.battery = np.zeros((streams, 1), np.float32)
+        self.hint = np.full(streams, MOVES) if hint else None  # the heuristic's move now (--hint)
 
     def push(self, obs: dict, restart: np.ndarray) -> None:
         oob = obs["out_of_bounds"]
@@ -593,16 +621,25 @@ class Stacker:
         self.maps[restart] = obs["map"][restart][:, None]  # a new episode repeats its first frame
         self.extra[restart] = extra[restart][:, None]
         self.battery = obs["battery"]
+        if self.hint is not None:
+            self.hint = obs["hint"]
 
     def get(self):
         n = len(self.maps)
-        return (self.maps.reshape(n, -1, *self.maps.shape[-2:]),
-                np.concatenate([self.battery, self.extra.reshape(n, -1)], 1))
+        extras = [self.battery, self.extra.reshape(n, -1)]
+        if self.hint is not None:
+            extras.append(np.eye(HINTS, dtype=np.float32)[self.hint])
+        return self.maps.reshape(n, -1, *self.maps.shape[-2:]), np.concatenate(extras, 1)
 
 
-def observe(core: gridworld.GridWorldCore) -> dict:
-    """Every agent's observation, agent-major per world: stream b * N + i is agent i of world b."""
-    return {k: v.reshape(-1, *v.shape[2:]) for k, v in core.observe().items()}
+def observe(core: gridworld.GridWorldCore, hint: bool = False, dead_ends_first: bool = True) -> dict:
+    """Every agent's observation, agent-major per world: stream b * N + i is agent i of world b; with `hint`
+    also "hint", the deterministic heuristic's move of each agent (its known map, with claims: what the agent
+    itself could compute, so no privileged input)."""
+    obs = {k: v.reshape(-1, *v.shape[2:]) for k, v in core.observe().items()}
+    if hint:
+        obs["hint"] = core.heuristic_actions(False, dead_ends_first).reshape(-1)
+    return obs
 
 
 def to_torch(maps: np.ndarray, extras: np.ndarray, device: torch.device | None = None):
@@ -619,24 +656,40 @@ def stuck(since_new: np.ndarray, moved: np.ndarray, size: np.ndarray) -> np.ndar
     return (since_new > size) | ((since_new >= 5) & (moved <= 2))
 
 
-def large_margin_loss(q_all: torch.Tensor, label: torch.Tensor, margin: float) -> torch.Tensor:
+def large_margin_loss(q_all: torch.Tensor, label: torch.Tensor, margin: float,
+                      weight: torch.Tensor | None = None) -> torch.Tensor:
     """DQfD's J_E = max_a [Q(s, a) + l(a_E, a)] - Q(s, a_E), l = margin except at a_E, averaged
-    over the states with a label (label -1: none)."""
-    has = label >= 0
+    over the states with a label (label -1: none), each weighted by `weight` when given."""
+    has = (label >= 0).float() * (1.0 if weight is None else weight)
     a_e = label.clamp(min=0)
     beaten = (q_all + margin * (1 - F.one_hot(a_e, q_all.shape[1]))).max(1).values
-    return ((beaten - q_all.gather(1, a_e[:, None])[:, 0]) * has).sum() / has.sum().clamp(min=1)
+    return ((beaten - q_all.gather(1, a_e[:, None])[:, 0]) * has).sum() / has.sum().clamp(min=1e-9)
+
+
+def margin_weight(args: Args, step: int) -> float:
+    """The margin loss's weight at a step: --margin-loss, moved linearly to --margin-loss-end over
+    --margin-decay-steps (then held), so TD can refine what imitation taught."""
+    end = args.margin_loss if args.margin_loss_end is None else args.margin_loss_end
+    done = 1.0 if args.margin_decay_steps == 0 else min(1.0, step / args.margin_decay_steps)
+    return args.margin_loss + (end - args.margin_loss) * done
+
+
+def labelled(args: Args) -> bool:
+    """Whether replayed states need the teacher's labels: some margin loss at some step."""
+    return bool(args.margin_loss or args.margin_loss_end)
 
 
 def learn(q: QNetwork, target: QNetwork, optimizer: torch.optim.Optimizer, replay: Replay, args: Args,
-          beta: float, rng: np.random.Generator) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
+          beta: float, rng: np.random.Generator,
+          margin_loss_weight: float | None = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
     """One gradient step on a prioritized batch, on the networks' device (the batch handed over in one copy):
-    the double-DQN TD loss (plus the margin loss), new priorities, the soft target update (eq. 6.19) and
-    fresh noise; with --amp the forward passes run under bf16 autocast, the losses in float32. Returns the TD
-    loss, the mean Q(s, a) and the margin loss (None without one), detached."""
+    the double-DQN TD loss (plus the margin loss at `margin_loss_weight`, default --margin-loss; with a hint its
+    departures, labels other than the heuristic's move, weigh --departure-weight), new priorities, the soft
+    target update (eq. 6.19) and fresh noise; with --amp the forward passes run under bf16 autocast, the losses
+    in float32. Returns the TD loss, the mean Q(s, a) and the margin loss (None without labels), detached."""
     device = device_of(q)
     idx, (m_, e_, nm, ne, a_, ret, boot, weight, *label) = replay.batch(args.batch_size, beta, rng, device,
-                                                                        labels=bool(args.margin_loss))
+                                                                        labels=labelled(args))
     with torch.no_grad(), autocast(args.amp, device):  # double DQN: the online net picks, the target net values
         best = q(nm, ne).argmax(1, keepdim=True)
         y = ret + boot * target(nm, ne).float().gather(1, best)[:, 0]
@@ -644,10 +697,11 @@ def learn(q: QNetwork, target: QNetwork, optimizer: torch.optim.Optimizer, repla
         q_all = q(m_, e_).float()
     q_sa = q_all.gather(1, a_[:, None])[:, 0]
     td_loss = (weight * F.smooth_l1_loss(q_sa, y, reduction="none")).mean()
-    loss, margin_loss = td_loss, None
-    if args.margin_loss:
-        margin_loss = large_margin_loss(q_all, label[0], args.margin)
-        loss = loss + args.margin_loss * margin_loss
+    loss, margin_loss = args.td_weight * td_loss, None
+    if label:
+        departed = None if len(label) == 1 else 1 + (args.departure_weight - 1) * (label[0] != label[1]).float()
+        margin_loss = large_margin_loss(q_all, label[0], args.margin, departed)
+        loss = loss + (args.margin_loss if margin_loss_weight is None else margin_loss_weight) * margin_loss
     optimizer.zero_grad()
     loss.backward()
     nn.utils.clip_grad_norm_(q.parameters(), args.max_grad_norm)
@@ -756,13 +810,14 @@ def network_of(blob: dict, path: str) -> dict:
     if kind not in NETWORKS:
         raise ValueError(f"{path}: a {kind!r} network; the trainers build {' and '.join(NETWORKS)}")
     spec = {"network": kind, "frames": blob.get("frames", flags.get("frame_stack")),
-            "hidden": blob.get("hidden", flags.get("hidden")), "extras": blob.get("extras", EXTRAS)}
+            "hidden": blob.get("hidden", flags.get("hidden")), "extras": blob.get("extras", EXTRAS),
+            "hint": bool(blob.get("hint", flags.get("hint", False)))}
     if kind == "compact":
         spec |= {k: blob.get(k, flags.get(k)) for k in ("conv_width", *SCALE_KEYS)}
         spec |= {"view": blob.get("view", spec["scale_view"]), "observation": blob.get("observation", "multiscale")}
     else:
         spec |= {"view": blob.get("view", VIEW), "observation": blob.get("observation", "deep")}
-    if not all(isinstance(v, int) and v >= 1 for k, v in spec.items() if k not in ("network", "observation")):
+    if not all(isinstance(v, int) and v >= 1 for k, v in spec.items() if k not in ("network", "observation", "hint")):
         raise ValueError(f"{path}: not a rainbow_cpp / rainbow_marl model (no frame count or hidden width)")
     expected = ("deep", VIEW) if kind == "fig6.8" else ("multiscale", spec["scale_view"])
     if (spec["observation"], spec["view"], spec["extras"]) != (*expected, EXTRAS):
@@ -823,9 +878,14 @@ def check_flags(args: Args) -> None:
     for name in ("stage_steps_scale", "learning_rate", "adam_eps"):
         if not getattr(args, name) > 0:
             raise ValueError(f"--{name.replace('_', '-')} must be > 0, got {getattr(args, name)}")
-    for name in ("replay_ratio", "alpha", "sigma0", "margin_loss", "margin", "max_grad_norm"):
+    for name in ("replay_ratio", "alpha", "sigma0", "margin_loss", "margin", "max_grad_norm", "time_limit",
+                 "margin_decay_steps", "departure_weight", "td_weight"):
         if not getattr(args, name) >= 0:
             raise ValueError(f"--{name.replace('_', '-')} must be >= 0, got {getattr(args, name)}")
+    if args.margin_loss_end is not None and not args.margin_loss_end >= 0:
+        raise ValueError(f"--margin-loss-end must be >= 0, got {args.margin_loss_end}")
+    if args.departure_weight != 1 and not args.hint:
+        raise ValueError("--departure-weight needs --hint (a departure is a label other than the heuristic's move)")
 
 
 def run_name_of(args: Args) -> str:
@@ -839,7 +899,8 @@ def with_network(args: Args, model: dict | None, source: str | None) -> Args:
     """--network, --hidden, --frame-stack and the compact network's --conv-width and observation scales: from
     the model loaded (a flag that contradicts it is an error), else as given, else the defaults (Fig. 6.8 with
     the dissertation's width and frames; the compact network's COMPACT). A scale flag for Fig. 6.8, or scales
-    gridworld refuses, is an error too."""
+    gridworld refuses, is an error too. A model with a hint input keeps it; --hint adds one to a model without
+    (a warm start: start_run gives the hint's inputs zero weights; resuming such a checkpoint is an error)."""
     def pick(flag, key, default=None):
         given, loaded = getattr(args, flag), None if model is None else model.get(key, default)
         if given is not None and loaded is not None and given != loaded:
@@ -857,6 +918,7 @@ def with_network(args: Args, model: dict | None, source: str | None) -> Args:
         chosen[flag] = defaults[flag] if value is None else value
     if network == "compact":
         gridworld.EnvConfig(**observation_settings(chosen)).validate()
+    chosen["hint"] = bool(args.hint or (model or {}).get("hint"))
     return replace(args, **chosen)
 
 
@@ -940,6 +1002,8 @@ def start_run(args: Args, n_stages: int) -> tuple:
     warm = read_model(args.init_from) if args.init_from and not args.resume else None
     if state is not None:
         args = with_network(args, network_of(state, checkpoint), checkpoint)
+        if args.hint and not network_of(state, checkpoint)["hint"]:
+            raise ValueError(f"--hint contradicts {checkpoint} (no hint input); warm-start with --init-from instead")
     else:
         args = with_network(args, None if warm is None else network_of(warm, args.init_from), args.init_from)
     args = replace(args, run_name=run_name, export=args.export or os.path.join(run_dir, f"{SCRIPT}.pt"))
@@ -962,14 +1026,23 @@ def start_run(args: Args, n_stages: int) -> tuple:
                              f"({reason(e)})") from None
         progress, parent = (state["global_step"], state["stage"], state["wall"]), state.get("parent")
     elif warm is not None:  # transfer (§7.4.2.2): the mean weights, fresh noise
-        q.load_state_dict(policy_from(warm, args.init_from).state_dict() | {
-            k: v for k, v in q.state_dict().items() if "sigma" in k or "eps" in k})
+        fresh = q.state_dict()
+        q.load_state_dict({k: hinted(v, fresh[k]) for k, v in policy_from(warm, args.init_from).state_dict().items()}
+                          | {k: v for k, v in fresh.items() if "sigma" in k or "eps" in k})
         parent = lineage(args.init_from)
     target.load_state_dict(q.state_dict())
     if args.compile:
         q.compile()
         target.compile()
     return args, run_dir, q, target, optimizer, rng, progress, parent
+
+
+def hinted(weight: torch.Tensor, fresh: torch.Tensor) -> torch.Tensor:
+    """A warm start's weight for a network that adds the hint's inputs: the first stream layers get zero weights
+    on them (the policy starts as the parent's, then learns what the hint is worth); other weights as they are."""
+    if weight.shape == fresh.shape or weight.dim() != 2 or fresh.shape[1] != weight.shape[1] + HINTS:
+        return weight
+    return torch.cat([weight, torch.zeros(weight.shape[0], HINTS, dtype=weight.dtype)], 1)
 
 
 def save_run(run_dir: str, q: QNetwork, optimizer: torch.optim.Optimizer, args: Args, rng: np.random.Generator,
@@ -1008,15 +1081,15 @@ def check_teacher(args: Args) -> None:
 
 
 def rollout_labels(core: gridworld.GridWorldCore, label: np.ndarray, teach: np.ndarray, args: Args,
-                   rng: np.random.Generator) -> tuple[np.ndarray, int]:
+                   rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     """--teacher rollout: the heuristic's labels with the rollout's in the worlds the teacher acts in and, with
-    --margin-loss, in a label_fraction of the others, one batched rollout_actions call; returns the labels and how
-    many the rollout gave."""
-    need = teach | ((args.margin_loss > 0) & (rng.random(len(teach)) < args.label_fraction))
+    a margin loss, in a label_fraction of the others, one batched rollout_actions call; returns the labels and the
+    worlds the rollout labelled."""
+    need = teach | (labelled(args) & (rng.random(len(teach)) < args.label_fraction))
     w = np.flatnonzero(need)
     label = label.copy()
     label[w] = core.rollout_actions(w, args.heuristic_dead_ends)
-    return label, len(w)
+    return label, w
 
 
 
@@ -1066,9 +1139,9 @@ def evaluate_policy(q: QNetwork, scenarios: list, frames: int, sensor: str = "fu
                                    len(scenarios))
     core.configure(scenarios=scenarios)
     core.reset()
-    n = len(scenarios)
-    stack = Stacker(n, frames, *frame_shape(observation)[::-1])
-    stack.push(observe(core), np.ones(n, bool))
+    n, hint = len(scenarios), bool(spec.get("hint"))
+    stack = Stacker(n, frames, *frame_shape(observation)[::-1], hint=hint)
+    stack.push(observe(core, hint, dead_ends_first), np.ones(n, bool))
     done, truncated = np.zeros(n, bool), np.zeros(n, bool)
     since_new, used = np.zeros(n, np.int64), np.zeros(n, np.int64)
     times_stuck, owed = np.zeros(n, np.int64), np.zeros(n, np.int64)  # owed: new cells left to the heuristic
@@ -1100,7 +1173,7 @@ def evaluate_policy(q: QNetwork, scenarios: list, frames: int, sensor: str = "fu
                 cells.append(core.agent_cells())
             truncated |= ev["truncated"] & ~done
             done |= ev["terminated"] | ev["truncated"]
-            stack.push(observe(core), np.zeros(n, bool))
+            stack.push(observe(core, hint, dead_ends_first), np.zeros(n, bool))
     q.reset_noise(True)
     if trajectories is not None:
         trajectories.extend(world_paths(cells, steps, core.active))
@@ -1131,7 +1204,7 @@ def main(args: Args) -> None:
     core = gridworld.GridWorldCore(stage_config(stages[stage_index], args), args.num_envs, seed=args.seed + global_step)
     B = args.num_envs
     replay = Replay(args.buffer_size, B, view, args.frame_stack, args.n_step, args.gamma, args.alpha,
-                    None if observation["observation"] == "deep" else channels)
+                    None if observation["observation"] == "deep" else channels, args.hint)
     print(f"{run_dir}: {args.network} network on {device}, replay {replay.bytes_per_transition()} bytes per transition, "
           f"{replay.bytes_per_transition() * args.buffer_size / 2**30:.2f} GiB for {args.buffer_size:,}")
     from torch.utils.tensorboard import SummaryWriter
@@ -1141,8 +1214,8 @@ def main(args: Args) -> None:
     # TRY NOT TO MODIFY: start the game
     every = np.arange(B)
     core.reset()
-    obs = observe(core)
-    stack = Stacker(B, args.frame_stack, view, channels)
+    obs = observe(core, args.hint, args.heuristic_dead_ends)
+    stack = Stacker(B, args.frame_stack, view, channels, args.hint)
     stack.push(obs, np.ones(B, bool))
     slot = replay.add_frames(every, obs, np.zeros(B, np.int64), np.zeros(B, bool))
     age = np.zeros(B, np.int64)
@@ -1157,6 +1230,7 @@ def main(args: Args) -> None:
     yardstick: dict = {}  # stage index -> the heuristic alone on that stage's evaluation maps
     updates_due, last_log, last_loss_log, t0 = 0.0, global_step, global_step, time.time() - wall
     n_labels, label_time = 0, 0.0  # --teacher rollout: its labels and the seconds they took
+    departures = np.zeros(3, np.int64)  # of the rollout's labels: departures from the heuristic, the network's agreeing
     latest = ""
     stop = {"now": False}
     previous_handler = signal.signal(signal.SIGINT, lambda *_: stop.update(now=True))  # Ctrl-C: save, exit
@@ -1166,7 +1240,7 @@ def main(args: Args) -> None:
         save_run(run_dir, q, optimizer, args, rng, global_step, stage_index, stages[stage_index].name,
                  time.time() - t0, parent, machine)
 
-    while global_step < total and not stop["now"]:
+    while global_step < total and not stop["now"] and not (args.time_limit and time.time() - t0 >= 60 * args.time_limit):
         if global_step >= ends[stage_index]:  # the next curriculum stage, at each world's next reset
             stage_index += 1
             core.configure(stage_config(stages[stage_index], args))
@@ -1175,12 +1249,16 @@ def main(args: Args) -> None:
             action = q(*to_torch(*stack.get(), device)).argmax(1).cpu().numpy()
         moved = np.abs(core.agent_cells()[:, 0] - history[0]).sum(1)
         teach = (teacher | continued | stuck(since_new, moved, core.hw.max(1))) & (rng.random(B) < args.imitation)
-        label = (core.heuristic_actions(args.heuristic_random_ties, args.heuristic_dead_ends)[:, 0]
-                 if teach.any() or args.margin_loss else None)
+        label = None
+        if teach.any() or labelled(args):  # the hint is this heuristic's move when ties are not random
+            label = (obs["hint"] if args.hint and not args.heuristic_random_ties else
+                     core.heuristic_actions(args.heuristic_random_ties, args.heuristic_dead_ends)[:, 0])
         if args.teacher == "rollout" and label is not None:
             tick = time.perf_counter()
-            label, n = rollout_labels(core, label, teach, args, rng)
-            n_labels, label_time = n_labels + n, label_time + time.perf_counter() - tick
+            heuristic_label, (label, w) = label, rollout_labels(core, label, teach, args, rng)
+            n_labels, label_time = n_labels + len(w), label_time + time.perf_counter() - tick
+            off = w[label[w] != heuristic_label[w]]
+            departures += len(w), len(off), int((action[off] == label[off]).sum())
         if teach.any():  # a heuristic without a target (WAIT) leaves the agent its own move
             action = np.where(teach & (label < gridworld.WAIT), label, action)
 
@@ -1188,7 +1266,7 @@ def main(args: Args) -> None:
         ev = core.step(action[:, None])
         terminated, truncated = ev["terminated"], ev["truncated"]
         replay.set_transition(slot, action, ev["reward"][:, 0], terminated | (truncated & ~args.peb),
-                              label if args.margin_loss else None)
+                              label if labelled(args) else None)
         returns += ev["reward"][:, 0]
         since_new = np.where(ev["new"][:, 0], 0, since_new + 1)
         history = history[1:] + [core.agent_cells()[:, 0]]
@@ -1201,7 +1279,7 @@ def main(args: Args) -> None:
         ended = terminated | (truncated & ~args.partial_reset)
 
         # TRY NOT TO MODIFY: save data to replay buffer; handle final_observation
-        obs = observe(core)
+        obs = observe(core, args.hint, args.heuristic_dead_ends)
         slot = replay.add_frames(every, obs, age + 1, ended)
         age += 1
         if ended.any():
@@ -1224,7 +1302,7 @@ def main(args: Args) -> None:
             core.reset(fresh)
             for i, s in zip(w, core.snapshot(w)):
                 starts[i] = s
-            obs = observe(core)
+            obs = observe(core, args.hint, args.heuristic_dead_ends)
             slot[w] = replay.add_frames(w, {k: v[w] for k, v in obs.items()}, np.zeros(len(w), np.int64),
                                         np.zeros(len(w), bool))
             age[w] = since_new[w] = returns[w] = 0
@@ -1241,7 +1319,8 @@ def main(args: Args) -> None:
         while updates_due >= 1:
             updates_due -= 1
             beta = args.beta_start + (1 - args.beta_start) * min(1.0, global_step / total)
-            td_loss, q_values, margin_loss = learn(q, target, optimizer, replay, args, beta, rng)
+            td_loss, q_values, margin_loss = learn(q, target, optimizer, replay, args, beta, rng,
+                                                   margin_weight(args, global_step))
             if global_step - last_loss_log >= 1000:  # the first update after each 1000 steps
                 last_loss_log = global_step
                 writer.add_scalar("losses/td_loss", td_loss.item(), global_step)
@@ -1276,9 +1355,16 @@ def main(args: Args) -> None:
             for k, v in result.items():
                 writer.add_scalar(f"eval/{k}", v, global_step)
             latest = f", eval overlap {result['overlap']:.3f}"
+            agreed = ""
+            if departures[1]:  # since the last evaluation: the acting network's (noisy) move where the rollout departs
+                writer.add_scalar("charts/departure_share", departures[1] / departures[0], global_step)
+                writer.add_scalar("charts/departure_agreement", departures[2] / departures[1], global_step)
+                agreed = (f"; rollout departed from the heuristic at {departures[1] / departures[0]:.2%} of "
+                          f"{departures[0]:,} labels, the network agreed at {departures[2] / departures[1]:.0%}")
+                departures[:] = 0
             bar.write(f"step {global_step:,}  eval overlap {result['overlap']:.3f} (heuristic "
                       f"{result['heuristic_overlap']:.3f} on the same maps), completed {100 * result['completion']:.0f}%, "
-                      f"heuristic share {result['heuristic_share']:.2f}")
+                      f"heuristic share {result['heuristic_share']:.2f}{agreed}")
             if paths:
                 write_episode_video(pool[0], paths[0], os.path.join(run_dir, "videos", f"step_{global_step}.mp4"),
                                     stage.sensor, stage.sensor_range)

@@ -123,7 +123,7 @@ def test_compact_network_shapes(settings, frames):
     assert maps.shape == (3, channels * frames, view, view) and extras.shape == (3, 1 + frames * rc.EXTRAS)
     assert q(maps, extras).shape == (3, rc.MOVES)
     assert q.network() == {"network": "compact", "frames": frames, "hidden": 16, "conv_width": 8, "view": view,
-                           "extras": rc.EXTRAS, **observation}
+                           "extras": rc.EXTRAS, **observation, "hint": False}
     assert rc.observation_settings(q.network()) == observation
 
 

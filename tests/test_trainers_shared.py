@@ -37,17 +37,19 @@ TRAINERS = {"rainbow_cpp": rc, "rainbow_marl": rm}
 # every top-level definition meant to be equal in the two scripts
 SHARED = [
     "SCRIPT", "HERE", "OBSERVATION", "VIEW", "CHANNELS", "LAST_ACTIONS", "OUT_OF_BOUNDS", "EXTRAS",
-    "OUT_OF_BOUNDS_SCALE", "MOVES", "DISSERTATION", "NETWORKS", "SCALE_KEYS", "COMPACT", "CHECKPOINT_KEYS",
+    "OUT_OF_BOUNDS_SCALE", "MOVES", "DISSERTATION", "NETWORKS", "SCALE_KEYS", "HINTS", "COMPACT", "CHECKPOINT_KEYS",
     "UNREADABLE", "NoisyLinear", "QNetwork", "CompactQNetwork", "dueling", "build_network", "observation_settings",
     "frame_shape", "device_of", "autocast", "SumTree", "Replay", "hand_over", "Stacker", "observe", "to_torch",
-    "stuck", "large_margin_loss", "learn", "eval_config", "heuristic_baseline", "world_paths", "write_episode_video",
+    "stuck", "large_margin_loss", "margin_weight", "labelled", "learn", "eval_config", "heuristic_baseline",
+    "world_paths", "write_episode_video",
     "save_checkpoint", "write_json", "export", "read_model", "network_of", "policy_from", "load_policy",
     "load_checkpoint", "check_flags", "run_name_of", "with_network", "observed", "lineage", "host", "seed_everything",
-    "start_run", "save_run", "progress_bar", "reason",
+    "start_run", "hinted", "save_run", "progress_bar", "reason",
 ]
 # the Args fields that the shared code reads, equal in both (flag, default and docstring)
 SHARED_FLAGS = ["exp_name", "seed", "run_name", "threads", "cuda", "torch_deterministic", "compile", "amp", "quiet",
-                "capture_video", "network", "conv_width", "scales", "scale_factor", "scale_view"]
+                "capture_video", "network", "conv_width", "scales", "scale_factor", "scale_view", "margin_loss_end",
+                "margin_decay_steps", "hint", "departure_weight", "time_limit", "td_weight"]
 
 
 def definitions(source: str) -> dict[str, str]:
@@ -139,7 +141,8 @@ def test_observation_constants_come_from_gridworld(name):
     assert q.value[0].n_in == 64 * 9 * 9 + 1 + 2 * 13  # conv features, battery, 13 extras per frame
     assert q.conv[0].in_channels // 4 == q.frames == 2  # evaluate.py reads the frame count either way
     assert q.network() == {"network": "fig6.8", "frames": 2, "hidden": 16, "view": 41, "extras": 13,
-                           "observation": "deep"}
+                           "observation": "deep", "hint": False}
+    assert t.QNetwork(2, t.VIEW, 16, 0.5, hint=True).value[0].n_in == 64 * 9 * 9 + 1 + 2 * 13 + 5  # + the hint one-hot
 
 
 # ----------------------------------------------------------------------------- run names, widths
