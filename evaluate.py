@@ -6,6 +6,8 @@ policies on the same episodes, and videos of the agents at work.
     python evaluate.py --policy greedy --dataset maps/cpp_eval.npz --out runs/eval/greedy
     python evaluate.py --policy partition --dataset maps/marl_eval.npz --agents 5 --out DIR
     python evaluate.py --policy marl --dataset maps/marl_eval.npz --agents 5 --faulty-agent-at 0.5 --out DIR
+    python evaluate.py --policy rainbow --sensor camera --sensor-range 3 --compare frontier,frontier-rollout \
+        --dataset maps/cpp_eval.npz --every 10 --out DIR
 
 Writes DIR/episodes.csv (map, size, n_free, agents, start, steps, revisits, overlap, time_save,
 completed, truncated, heuristic_steps) and DIR/summary.json (mean, median, std, min, max of
@@ -18,7 +20,11 @@ fallback unless --no-heuristic), the chapter-7 agents `marl` (rainbow_marl.py; d
 models/rainbow_marl.pt, decentralised: every agent acts on its own observation; --action-loss,
 --faulty-agent-at), the chapter-5 agent `tabular` (tabular_q.py; --checkpoint, default
 models/tabular_q.npz, greedy, the heuristic at dead ends unless --no-heuristic, --sensor builds
-the heuristic's map).
+the heuristic's map), and the exploration baselines, policies of the agent's known map under --sensor,
+--sensor-range and --sensor-failure (one agent): `frontier` (the navigation heuristic: nearest known point
+of interest, else nearest frontier cell, dead-ends-first ties), `frontier-row-major` (row-major ties) and
+`frontier-rollout` (the one-step rollout of `frontier` planned on the known map, unknown cells taken as
+points of interest). With --sensor full they are greedy-dead-ends, greedy and rollout.
 
 --compare greedy,lkh runs the same episodes (same maps, same starts) with each listed policy (learned
 ones with their default model) and prints and writes DIR/compare.md and DIR/compare.json: mean overlap,
@@ -55,6 +61,8 @@ import gridworld
 from gridworld import Scenario
 
 LEARNED = ("rainbow", "marl", "tabular")
+# policies of the agent's known map (the heuristic, or its one-step rollout): name -> (dead_ends_first, rollout)
+FRONTIER = {"frontier": (True, False), "frontier-row-major": (False, False), "frontier-rollout": (True, True)}
 DEFAULT_CHECKPOINT = {"rainbow": "models/rainbow_cpp.pt", "marl": "models/rainbow_marl.pt",
                       "tabular": "models/tabular_q.npz"}
 COLUMNS = ["map", "size", "n_free", "agents", "start", "steps", "revisits", "overlap", "time_save",
@@ -68,7 +76,9 @@ VIDEO_SECONDS = 30  # long episodes play faster than 10 steps/s so that a video 
 class Args:
     policy: str = "greedy"
     """a classical_cpp planner (greedy, greedy-dead-ends, rollout, boustrophedon, spiral-stc, wavefront, lkh,
-    partition) or a learned agent (rainbow, marl, tabular)"""
+    partition), a learned agent (rainbow, marl, tabular) or a policy of the known map under --sensor (frontier:
+    the heuristic with dead-ends-first ties; frontier-row-major: row-major ties; frontier-rollout: its one-step
+    rollout on the known map)"""
     checkpoint: str | None = None
     """weights / table of a learned agent"""
     maps: tuple[str, ...] = ()
@@ -84,7 +94,7 @@ class Args:
     """seed for starts drawn at random (with the map's file name: a map gets the same starts wherever it is
     listed)"""
     sensor: str = "full"
-    """full, camera or lidar (learned policies; the planners plan with full information)"""
+    """full, camera or lidar (learned and frontier policies; the planners plan with full information)"""
     sensor_range: int = 3
     """sensor range K in cells"""
     sensor_failure: float = 0.0
@@ -347,6 +357,49 @@ def _tabular(args: Args):
     return run
 
 
+def _frontier(args: Args, policy: str):
+    """Check the settings; returns run(episodes, paths) -> rows."""
+    if args.agents != 1:
+        raise ValueError(f"{policy} is single-agent; use --agents 1")
+    if args.faulty_agent_at is not None or args.action_loss:
+        raise ValueError("--faulty-agent-at and --action-loss need several agents (the marl policy)")
+    dead_ends_first, lookahead = FRONTIER[policy]
+
+    def play(part, i, trajectories):
+        config = gridworld.EnvConfig(load_state=True, load_random=False, sensor=args.sensor,
+                                     sensor_range=args.sensor_range, sensor_failure=args.sensor_failure)
+        core = gridworld.GridWorldCore(config, len(part), seed=args.seed + i)  # the seed draws the sensor failures
+        core.configure(scenarios=[s for _, s in part])
+        core.reset()
+        done, truncated = np.zeros(core.B, bool), np.zeros(core.B, bool)
+        steps = np.zeros(core.B, np.int64)  # each world's own, not counting the waits after its end
+        cells = [core.agent_cells()]
+        while not done.all():
+            action = np.full(core.B, gridworld.WAIT)
+            live = np.flatnonzero(~done)
+            action[live] = (core.rollout_actions(live, dead_ends_first, view="known") if lookahead
+                            else core.heuristic_actions(False, dead_ends_first)[live, 0])
+            ev = core.step(action[:, None])
+            steps += ~done
+            truncated |= ev["truncated"] & ~done
+            done |= ev["terminated"] | ev["truncated"]
+            if trajectories is not None:
+                cells.append(core.agent_cells())
+        if trajectories is not None:
+            trajectories.extend(np.stack(cells)[:t + 1, b] for b, t in enumerate(steps))
+        m = core.metrics()
+        return _rows(part, {**m, "steps": steps, "time_save": steps / np.maximum(m["n_poi_start"], 1),
+                            "truncated": truncated})
+
+    return lambda episodes, paths=None: _sliced(episodes, 64, play, policy, args.quiet, paths)
+
+
+def run_frontier(args: Args, episodes: list[tuple[str, Scenario]], paths: dict | None = None) -> list[dict]:
+    """The frontier policies: args.policy (one of FRONTIER) on the agent's known map under --sensor, --sensor-range
+    and --sensor-failure, stepped in gridworld, 64 worlds at a time. `paths` as for run_rainbow."""
+    return _frontier(args, args.policy)(episodes, paths)
+
+
 def run_tabular(args: Args, episodes: list[tuple[str, Scenario]], paths: dict | None = None) -> list[dict]:
     """The chapter-5 agent (tabular_q.py): greedy, never-seen states and dead ends take the heuristic (off with
     --no-heuristic); --sensor builds the map the heuristic plans on. `paths` as for run_rainbow."""
@@ -420,6 +473,8 @@ def _runner(args: Args, policy: str):
     """Check `policy`'s settings and load its model; returns run(episodes, paths=None) -> rows."""
     if policy in LEARNED:
         return {"rainbow": _rainbow, "marl": _marl, "tabular": _tabular}[policy](args)
+    if policy in FRONTIER:
+        return _frontier(args, policy)
     if policy in classical_cpp.SINGLE_AGENT and args.agents != 1:
         raise ValueError(f"{policy} is a single-agent planner; use --agents 1 (or greedy, greedy-dead-ends, "
                          "rollout or partition for several)")
@@ -443,18 +498,19 @@ def main(args: Args) -> dict:
     compared = [p.strip() for p in args.compare.split(",") if p.strip()]
     policies = [args.policy] + compared
     for flag, p in [("--policy", args.policy)] + [("--compare", p) for p in compared]:
-        if p not in classical_cpp.PLANNERS and p not in LEARNED:
-            raise ValueError(f"{flag}: unknown policy {p!r}; choose from {sorted(classical_cpp.PLANNERS) + list(LEARNED)}")
+        if p not in classical_cpp.PLANNERS and p not in LEARNED and p not in FRONTIER:
+            raise ValueError(f"{flag}: unknown policy {p!r}; choose from "
+                             f"{sorted(classical_cpp.PLANNERS) + list(LEARNED) + list(FRONTIER)}")
     if len(set(policies)) != len(policies):
         raise ValueError(f"--compare {args.compare}: a policy is listed twice (or is --policy itself)")
     if args.sensor not in gridworld.SENSORS:
         raise ValueError(f"--sensor must be one of {gridworld.SENSORS}, got {args.sensor!r}")
     if args.sensor_range < 1:
         raise ValueError(f"--sensor-range must be >= 1, got {args.sensor_range}")
-    if not any(p in LEARNED for p in policies) and (args.sensor != "full" or args.sensor_failure
-                                                     or args.faulty_agent_at is not None or args.action_loss):
+    if not any(p in LEARNED or p in FRONTIER for p in policies) and (
+            args.sensor != "full" or args.sensor_failure or args.faulty_agent_at is not None or args.action_loss):
         raise ValueError("the classical planners plan with full information and no faults; --sensor, "
-                         "--sensor-failure, --faulty-agent-at and --action-loss apply to learned policies")
+                         "--sensor-failure, --faulty-agent-at and --action-loss apply to learned and frontier policies")
     for flag, value in (("--workers", args.workers), ("--video-episodes", args.video_episodes),
                         ("--video-max", args.video_max)):
         if value < 1:
@@ -486,7 +542,8 @@ def _write(args: Args, episodes: list[tuple[str, Scenario]], results: dict[str, 
         files[os.path.join(args.out, "compare.json")] = partial(_write_json, data=table)
         files[os.path.join(args.out, "compare.md")] = partial(_write_text, text=f"# {' vs '.join(results)}\n\n{text}\n")
         lines += ["", text]
-    config = {"sensor": args.sensor, "sensor_range": args.sensor_range} if args.policy in LEARNED else None
+    sensed = args.policy in LEARNED or args.policy in FRONTIER
+    config = {"sensor": args.sensor, "sensor_range": args.sensor_range} if sensed else None
     for i, cells in paths[args.policy].items():
         name, scenario = episodes[i]
         stem = os.path.join(args.video, f"{i:03d}-" + re.sub(r"[^A-Za-z0-9_-]+", "-", name).strip("-"))

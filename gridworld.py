@@ -1695,12 +1695,16 @@ class GridWorldCore:
         move = FIRST_STEP[np.where(has_goal, gy - yx[:, 0], 0) + 1, np.where(has_goal, gx - yx[:, 1], 0) + 1]
         return move.reshape(B, N)
 
-    def rollout_actions(self, worlds=None, dead_ends_first: bool = True, max_steps: int | None = None) -> np.ndarray:
+    def rollout_actions(self, worlds=None, dead_ends_first: bool = True, max_steps: int | None = None,
+                        view: str = "full") -> np.ndarray:
         """The one-step rollout (Bertsekas) of the deterministic heuristic (random_ties=False; greedy-dead-ends
         by default) for one agent, batched: in each given world (all by default; a bool mask or indices) try
         each move, finish each try with the heuristic and take the move with the fewest total steps (the
-        heuristic's own move on ties, then N, S, W, E order), (len(worlds),) actions. It plans on the full
-        state (map, coverage), also in sensor tasks: a privileged teacher, not a policy of the observation.
+        heuristic's own move on ties, then N, S, W, E order), (len(worlds),) actions. With view="full" it plans
+        on the full state (map, coverage), also in sensor tasks: a privileged teacher, not a policy of the
+        observation. With view="known" it plans on the agent's known map (a policy of what it has seen): unknown
+        cells are free points of interest, except those walled in by known obstacles (unreachable, so obstacles).
+        The imagined worlds are fully seen and sense nothing: a sensor there would reveal the true map.
 
         Each world is copied (copy_worlds) into 4 candidate worlds of a scratch core, one per move; a blocked
         move is not a candidate, and a world with a single candidate takes it at once. The candidates then
@@ -1713,6 +1717,8 @@ class GridWorldCore:
         This core is not changed (nor its random stream)."""
         if self.N != 1:
             raise ValueError(f"rollout_actions plans for one agent, the worlds have {self.N}")
+        if view not in ("full", "known"):
+            raise ValueError(f"rollout_actions: view must be 'full' or 'known', got {view!r}")
         if worlds is None:
             w = np.arange(self.B)
         else:
@@ -1724,8 +1730,15 @@ class GridWorldCore:
         scratch = self._scratch(n * K)
         scratch.copy_worlds(np.repeat(w, K), np.arange(n * K), source=self)
         c = self.c
+        if view == "known":  # the optimistic known map: what the agent can reach and has not seen is to cover
+            inner = (slice(None), slice(c, c + self.H), slice(c, c + self.W))
+            unknown = ~scratch.seen[inner]
+            reach = _flood(~scratch.obstacle[inner] | unknown, scratch.occupied[inner])
+            scratch.obstacle[inner] = ~reach
+            scratch.covered[inner] &= ~unknown
+            scratch.remaining[:] = (reach & ~scratch.covered[inner]).sum((1, 2))
         scratch.seen[:, c:c + self.H, c:c + self.W] = True  # the full state (outside the map is obstacle)
-        base = scratch.heuristic_actions(False, dead_ends_first)[::K, 0]  # its own move, on the full state
+        base = scratch.heuristic_actions(False, dead_ends_first)[::K, 0]  # its own move, on the state planned on
         out = base.copy()
         moves = np.arange(K)
         live = (self.remaining[w] > 0) & self.active[w, 0] & ~self.frozen[w, 0]
@@ -1762,11 +1775,98 @@ class GridWorldCore:
         return out
 
     def _scratch(self, m: int) -> GridWorldCore:
-        """m empty worlds of this core's geometry (one agent, full sensor: no sensing) for rollout_actions."""
-        scratch = GridWorldCore(EnvConfig(view_size=self.config.view_size), m)
+        """m empty worlds of this core's geometry (its agents, full sensor: no sensing) for the rollouts."""
+        scratch = GridWorldCore(EnvConfig(view_size=self.config.view_size, number_agents=self.N), m)
         if (scratch.H, scratch.W) != (self.H, self.W):
-            scratch._allocate(self.H, self.W, 1, None)
+            scratch._allocate(self.H, self.W, self.N, None)
         return scratch
+
+    def team_rollout_actions(self, worlds=None, dead_ends_first: bool = True, max_steps: int | None = None) -> np.ndarray:
+        """The multiagent rollout (Bertsekas 2020, "Multiagent rollout algorithms and reinforcement learning") of the
+        deterministic heuristic with claims (random_ties=False; greedy-dead-ends by default), batched: in each given
+        world (all by default; a bool mask or indices) the agents choose in index order, agent i trying each of its
+        moves with agents < i on their chosen moves and agents > i on the heuristic's; each try is finished by the
+        heuristic for the whole team and the cheapest is kept: the fewest steps until every point of interest is
+        covered (the team makespan), then the fewest agent moves, then the heuristic's own move, then N, S, W, E, WAIT
+        order. (len(worlds), N) actions from at most 4 tries an agent besides the incumbent, not 5^N joint moves (WAIT
+        is a move for several agents; a single agent never gains by waiting, so with one agent this is rollout_actions).
+        Like rollout_actions it plans on the full state (map, coverage), also in sensor tasks: a privileged teacher,
+        not a policy of the observation.
+
+        Agent i's tries are copies (copy_worlds) of their world in a scratch core, run in lockstep with one batched
+        heuristic call a step; moves into obstacles are not tried. The incumbent (agent i on the heuristic's move) is
+        the previous agent's winner, so its cost is known and only agent 0's is simulated; a try stops once it cannot
+        beat the incumbent (it needs at least steps + ceil(remaining / working agents) steps and moves + remaining
+        moves), and a world decides when its first try finishes (the others need more steps) or the incumbent's step
+        count is reached. After max_steps steps (default 4 * H * W: a heuristic that cannot finish) agent i keeps the
+        heuristic's move. Absent and frozen agents get WAIT, finished worlds the heuristic's moves. This core is not
+        changed (nor its random stream)."""
+        if worlds is None:
+            w = np.arange(self.B)
+        else:
+            w = np.asarray(worlds)
+            w = np.flatnonzero(w) if w.dtype == bool else w.astype(np.int64).ravel()
+        n, N = len(w), self.N
+        K = 4 if N == 1 else 5  # WAIT only lets another agent by
+        if n == 0:
+            return np.zeros((0, N), np.int64)
+        c = self.c
+        inner = (slice(None), slice(c, c + self.H), slice(c, c + self.W))
+        probe = self._scratch(n)
+        probe.copy_worlds(w, np.arange(n), source=self)
+        probe.seen[inner] = True  # the full state (outside the map is obstacle)
+        chosen = probe.heuristic_actions(False, dead_ends_first)  # agents < i: chosen; agents >= i: the heuristic's
+        working = self.active[w] & ~self.frozen[w]
+        n_work = np.maximum(working.sum(1), 1)[:, None]
+        live = self.remaining[w] > 0
+        cost = np.full((n, 2), np.inf)  # the incumbent's steps and agent moves to finish, where known
+        moves, rows = np.arange(K), np.arange(n)
+        moves0 = self.agent_moves[w][:, None]
+        limit = 4 * self.H * self.W if max_steps is None else max_steps
+        for i in range(N):  # the sequential choice: agent i knows the moves of agents < i
+            tgt = self.pos[w, i, None] + self.delta[:K]
+            legal = (~self.views["obstacle"][tgt] | (moves == WAIT)) & (live & working[:, i])[:, None]
+            known = np.isfinite(cost[:, :1])
+            incumbent = moves == chosen[:, i, None]
+            single = ~known[:, 0] & (legal.sum(1) == 1)  # nothing to compare: the only move is taken
+            chosen[single, i] = legal[single].argmax(1)
+            run = legal & ~single[:, None] & ~(incumbent & known)  # (n, K) tries still running
+            if not run.any():
+                continue
+            owner = np.flatnonzero(run.ravel())  # the (world, move) of each scratch world, flat
+            scratch = self._scratch(len(owner))
+            scratch.copy_worlds(w[owner // K], np.arange(len(owner)), source=self)
+            scratch.seen[inner] = True
+            first = chosen[owner // K]
+            first[:, i] = owner % K
+            scratch.step(first)
+            tie = np.where(incumbent, 0, moves + 1)  # ties: the heuristic's move, then N, S, W, E, WAIT
+            for t in range(1, limit + 1):  # t: the steps each running try has taken
+                remaining, moved = np.zeros(n * K, np.int64), np.zeros(n * K, np.int64)
+                remaining[owner], moved[owner] = scratch.remaining, scratch.agent_moves
+                remaining, moved = remaining.reshape(n, K), moved.reshape(n, K) - moves0
+                done = run & (remaining == 0)
+                key = np.where(done, moved * (K + 1) + tie, np.inf)
+                best = key.argmin(1)
+                decided = done.any(1) | (cost[:, 0] <= t)
+                win = decided & (key[rows, best] < np.where(cost[:, 0] == t, cost[:, 1] * (K + 1), np.inf))
+                chosen[win, i] = best[win]
+                cost[win] = np.stack([np.full(win.sum(), t), moved[win, best[win]]], 1)
+                run[decided] = False
+                steps_lb, moves_lb = t + -(-remaining // n_work), moved + remaining
+                run &= (steps_lb < cost[:, :1]) | ((steps_lb == cost[:, :1]) & (moves_lb < cost[:, 1:]))
+                if not run.any() or t == limit:
+                    break
+                alive = run.ravel()[owner]
+                if 2 * alive.sum() <= len(owner) and len(owner) > 8:  # rebuild the scratch without the stopped
+                    keep = np.flatnonzero(alive)
+                    small = self._scratch(len(keep))
+                    small.copy_worlds(keep, np.arange(len(keep)), source=scratch)
+                    scratch, owner, alive = small, owner[keep], alive[keep]
+                scratch.frozen[:] = self.frozen[w[owner // K]] | ~alive[:, None]  # stopped tries are skipped
+                scratch.any_frozen = True
+                scratch.step(scratch.heuristic_actions(False, dead_ends_first))
+        return chosen
 
     # --- rendering ----------------------------------------------------------------------
     def render_rgb(self, world: int = 0, cell: int = 16) -> np.ndarray:

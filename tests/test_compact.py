@@ -201,7 +201,7 @@ def test_a_compact_run_trains_exports_and_resumes(name, tmp_path, monkeypatch, r
     run = tmp_path / "runs" / "c"
     info = json.loads((run / f"{name}.json").read_text())
     want = {"network": "compact", "frames": 3, "hidden": 16, "conv_width": 8, "view": 7, "extras": 13,
-            **multiscale(2, 3, 7)}
+            **multiscale(2, 3, 7), "hint": False}
     assert info["network"] == want and info["global_step"] == 64 and info["provenance"]["device"] == "cpu"
     assert info["args"]["network"] == "compact" and info["args"]["threads"] == 0
     q = t.load_policy(str(run / f"{name}.pt"))
