@@ -1039,11 +1039,7 @@ class GridWorldCore:
         restart them in given scenarios (their maps, starts and coverage; e.g. episodes kept
         because the agent failed them, §6.4.2.3)."""
         cfg, rng = self.config, self.rng
-        if worlds is None:
-            w = np.arange(self.B)
-        else:
-            w = np.asarray(worlds)
-            w = np.flatnonzero(w) if w.dtype == bool else w.astype(np.int64)
+        w = self._world_indices(worlds)
         if len(w) == 0:
             return
         k, H, W, N = len(w), self.H, self.W, self.N
@@ -1719,11 +1715,7 @@ class GridWorldCore:
             raise ValueError(f"rollout_actions plans for one agent, the worlds have {self.N}")
         if view not in ("full", "known"):
             raise ValueError(f"rollout_actions: view must be 'full' or 'known', got {view!r}")
-        if worlds is None:
-            w = np.arange(self.B)
-        else:
-            w = np.asarray(worlds)
-            w = np.flatnonzero(w) if w.dtype == bool else w.astype(np.int64).ravel()
+        w = self._world_indices(worlds)
         n, K = len(w), 4
         if n == 0:
             return np.zeros(0, np.int64)
@@ -1764,11 +1756,7 @@ class GridWorldCore:
             if not run.any() or t == limit:
                 break
             alive = run.ravel()[owner]
-            if 2 * alive.sum() <= len(owner) and len(owner) > 8:  # rebuild the scratch without the stopped
-                keep = np.flatnonzero(alive)
-                small = self._scratch(len(keep))
-                small.copy_worlds(keep, np.arange(len(keep)), source=scratch)
-                scratch, owner, alive = small, owner[keep], alive[keep]
+            scratch, owner, alive = self._compacted(scratch, owner, alive)
             scratch.frozen[:, 0] = ~alive
             scratch.any_frozen = True
             scratch.step(scratch.heuristic_actions(False, dead_ends_first))
@@ -1780,6 +1768,23 @@ class GridWorldCore:
         if (scratch.H, scratch.W) != (self.H, self.W):
             scratch._allocate(self.H, self.W, self.N, None)
         return scratch
+
+    def _compacted(self, scratch: GridWorldCore, owner: np.ndarray, alive: np.ndarray):
+        """The rollouts' scratch core rebuilt without its stopped tries once they are half of it (stepping frozen
+        worlds still costs), with the owners and liveness of the kept ones."""
+        if 2 * alive.sum() > len(owner) or len(owner) <= 8:
+            return scratch, owner, alive
+        keep = np.flatnonzero(alive)
+        small = self._scratch(len(keep))
+        small.copy_worlds(keep, np.arange(len(keep)), source=scratch)
+        return small, owner[keep], alive[keep]
+
+    def _world_indices(self, worlds) -> np.ndarray:
+        """The indices of the given worlds: all (None), a bool mask or indices."""
+        if worlds is None:
+            return np.arange(self.B)
+        w = np.asarray(worlds)
+        return np.flatnonzero(w) if w.dtype == bool else w.astype(np.int64).ravel()
 
     def team_rollout_actions(self, worlds=None, dead_ends_first: bool = True, max_steps: int | None = None) -> np.ndarray:
         """The multiagent rollout (Bertsekas 2020, "Multiagent rollout algorithms and reinforcement learning") of the
@@ -1801,11 +1806,7 @@ class GridWorldCore:
         count is reached. After max_steps steps (default 4 * H * W: a heuristic that cannot finish) agent i keeps the
         heuristic's move. Absent and frozen agents get WAIT, finished worlds the heuristic's moves. This core is not
         changed (nor its random stream)."""
-        if worlds is None:
-            w = np.arange(self.B)
-        else:
-            w = np.asarray(worlds)
-            w = np.flatnonzero(w) if w.dtype == bool else w.astype(np.int64).ravel()
+        w = self._world_indices(worlds)
         n, N = len(w), self.N
         K = 4 if N == 1 else 5  # WAIT only lets another agent by
         if n == 0:
@@ -1858,11 +1859,7 @@ class GridWorldCore:
                 if not run.any() or t == limit:
                     break
                 alive = run.ravel()[owner]
-                if 2 * alive.sum() <= len(owner) and len(owner) > 8:  # rebuild the scratch without the stopped
-                    keep = np.flatnonzero(alive)
-                    small = self._scratch(len(keep))
-                    small.copy_worlds(keep, np.arange(len(keep)), source=scratch)
-                    scratch, owner, alive = small, owner[keep], alive[keep]
+                scratch, owner, alive = self._compacted(scratch, owner, alive)
                 scratch.frozen[:] = self.frozen[w[owner // K]] | ~alive[:, None]  # stopped tries are skipped
                 scratch.any_frozen = True
                 scratch.step(scratch.heuristic_actions(False, dead_ends_first))

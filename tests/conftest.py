@@ -8,6 +8,14 @@ import classical_cpp as cc
 import gridworld as gw
 
 
+def from_rows(rows: list[str]) -> gw.Scenario:
+    """A map drawn in text: '.' free, '@' obstacle, 'x' pre-covered, digits = agent starts in index order (covered)."""
+    chars = np.array([list(r) for r in rows])
+    digits = np.char.isdigit(chars)
+    starts = np.argwhere(digits)[np.argsort(chars[digits].astype(int))]
+    return cc.with_starts(gw.Scenario(chars == "@", starts, chars == "x"))
+
+
 @pytest.fixture
 def heuristic_ties(monkeypatch) -> list:
     """The dead_ends_first argument of every GridWorldCore.heuristic_actions call, in order."""

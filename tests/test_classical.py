@@ -23,6 +23,7 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
+from conftest import from_rows  # noqa: E402
 from conftest import one_line_error as _one_line_error  # noqa: E402
 
 import classical_cpp as cc  # noqa: E402
@@ -42,14 +43,6 @@ def make(obstacles, starts, covered=None) -> gw.Scenario:
     cov = np.zeros_like(obstacles) if covered is None else np.asarray(covered, bool).copy()
     cov[starts[:, 0], starts[:, 1]] = True
     return gw.Scenario(obstacles, starts, cov)
-
-
-def from_rows(rows: list[str]) -> gw.Scenario:
-    """'.' free, '@' obstacle, 'x' pre-covered, digits = agent starts in index order."""
-    chars = np.array([list(r) for r in rows])
-    digits = np.char.isdigit(chars)
-    starts = np.argwhere(digits)[np.argsort(chars[digits].astype(int))]
-    return make(chars == "@", starts, chars == "x")
 
 
 def load_external(name: str, start) -> gw.Scenario:

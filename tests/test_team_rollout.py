@@ -20,16 +20,10 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
+from conftest import from_rows  # noqa: E402
+
 import classical_cpp as cc  # noqa: E402
 import gridworld as gw  # noqa: E402
-
-
-def from_rows(rows: list[str]) -> gw.Scenario:
-    """'.' free, '@' obstacle, digits = agent starts in index order; the starts are covered."""
-    chars = np.array([list(r) for r in rows])
-    digits = np.char.isdigit(chars)
-    starts = np.argwhere(digits)[np.argsort(chars[digits].astype(int))]
-    return cc.with_starts(gw.Scenario(chars == "@", starts))
 
 
 def random_maps(n: int, agents: int, seed: int) -> list[gw.Scenario]:
