@@ -52,6 +52,8 @@ STRUCTURED_PLANNERS = ("greedy", "greedy-dead-ends", "boustrophedon", "spiral-st
 STRUCTURED_BANDS = ((10, 15), (16, 20), (21, 25), (26, 30))  # structured_eval's sizes, in bands
 STRUCTURED_PER_BAND = 3  # maps per family and band: 48 maps, ~15 min of planners on one core (LKH, rollout)
 MARL_MIN_SIZE, MARL_EVERY = 10, 5  # the multi-agent baselines: every 5th marl_eval layout of sizes 10-30
+TEAM_PLANNERS = ("greedy", "greedy-dead-ends", "rollout")  # the multiagent rollout beside its base and greedy
+TEAM_AGENTS, TEAM_MARL_EVERY, TEAM_STRUCTURED_EVERY = (2, 5, 10), 100, 21  # 21 marl_eval maps, 80 structured_eval maps
 
 
 # ----------------------------------------------------------------------------- the grid graph
@@ -1010,6 +1012,63 @@ def compare_rollout(per_size: int, quiet: bool = False) -> dict:
     with _bar(len(cpp) + len(external), quiet) as bar:
         by_size, by_map = _single_agent(["rollout"], cpp, sizes, external, bar)
     return {"per_size": per_size, "planners": ["rollout"], "cpp_eval": by_size, "external": by_map}
+
+
+def structured_team_subset(agents: int, every: int) -> tuple[list[Scenario], np.ndarray]:
+    """Every `every`-th structured_eval map (all families, sizes 10-30) with its first `agents` starts (covered), and
+    their sizes."""
+    path = os.path.join(ROOT, "maps", "structured_eval.npz")
+    sizes = np.load(path)["size"][::every]
+    maps = gridworld.load_dataset(path)[::every]
+    return [with_starts(Scenario(s.obstacles, s.starts[:agents])) for s in maps], sizes
+
+
+def compare_team_rollout(agents=TEAM_AGENTS, marl_every: int = TEAM_MARL_EVERY, structured_every: int = TEAM_STRUCTURED_EVERY,
+                         structured_agents: int = 5, quiet: bool = False) -> dict:
+    """The multiagent rollout planner beside its base (greedy-dead-ends with claims) and greedy with claims: on every
+    `marl_every`-th marl_eval layout of sizes 10-30 at each N of `agents`, and on every `structured_every`-th
+    structured_eval map at N = `structured_agents` (0: none). Per planner the mean time-save factor (eq. 7.6), the
+    seconds per map and the ms per team step (planning and replay), beside the lower bound ceil(n_poi / N) / n_poi
+    averaged the same way, and the maps where the rollout's makespan is longer than its base's (0 by construction)."""
+    if not agents or min(agents) < 2 or structured_agents < 2:
+        raise ValueError("the team rollout needs >= 2 agents (one agent: the rollout planner)")
+    if marl_every < 1 or structured_every < 0:
+        raise ValueError(f"marl_every must be >= 1 and structured_every >= 0, got {marl_every}, {structured_every}")
+    sets = [("marl_eval", n, *marl_eval_subset(n, marl_every)) for n in agents]
+    if structured_every:
+        sets.append(("structured_eval", structured_agents, *structured_team_subset(structured_agents, structured_every)))
+    result = {"marl_every": marl_every, "structured_every": structured_every, "planners": list(TEAM_PLANNERS),
+              "marl_eval": {}, "structured_eval": {}}
+    with _bar(len(TEAM_PLANNERS) * sum(len(c) for _, _, c, _ in sets), quiet) as bar:
+        for dataset, n, scenarios, sizes in sets:
+            bound = np.mean([lower_bound(s) / max(int((~s.obstacles).sum()) - n, 1) for s in scenarios])
+            entry = {"maps": len(scenarios), "sizes": [int(sizes.min()), int(sizes.max())],
+                     "lower_bound_time_save": round(float(bound), 4)}
+            steps = {}
+            for name in TEAM_PLANNERS:
+                bar.set_description(f"{name}, {n} agents, {dataset}")
+                t0 = time.perf_counter()
+                rows, _ = evaluate(name, scenarios, bar)
+                seconds = time.perf_counter() - t0
+                steps[name] = np.array([r["steps"] for r in rows])
+                entry[name] = {"time_save": round(float(np.mean([r["time_save"] for r in rows])), 4),
+                               "s_per_map": round(seconds / len(rows), 3),
+                               "ms_per_team_step": round(1000 * seconds / max(int(steps[name].sum()), 1), 2)}
+            entry["rollout_longer_than_base"] = int((steps["rollout"] > steps["greedy-dead-ends"]).sum())
+            result[dataset][str(n)] = entry
+    return result
+
+
+def team_rollout_table(result: dict) -> str:
+    """compare_team_rollout's result as a Markdown table."""
+    rows = ["| dataset | N | maps | greedy (claims) | greedy-dead-ends (claims) | rollout | lower bound | rollout s/map |",
+            "|---|---|---|---|---|---|---|---|"]
+    for dataset in ("marl_eval", "structured_eval"):
+        for n, e in result[dataset].items():
+            rows.append(f"| {dataset} | {n} | {e['maps']} | {e['greedy']['time_save']:.3f} | "
+                        f"{e['greedy-dead-ends']['time_save']:.3f} | **{e['rollout']['time_save']:.3f}** | "
+                        f"{e['lower_bound_time_save']:.3f} | {e['rollout']['s_per_map']:.2f} |")
+    return "\n".join(rows)
 
 
 def compare(per_size: int, quiet: bool = False, structured_per_band: int = STRUCTURED_PER_BAND) -> dict:

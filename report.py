@@ -48,7 +48,7 @@ import gridworld
 ROOT = os.path.dirname(os.path.abspath(__file__))
 RESULTS = os.path.join(ROOT, "results")
 PARTS = {"classical": "classical_cpp.json", "structured": "planners_structured.json", "rollout": "rollout.json",
-         "rainbow_cpp": "rainbow_cpp.json", "rainbow_marl": "rainbow_marl.json",
+         "team_rollout": "team_rollout.json", "rainbow_cpp": "rainbow_cpp.json", "rainbow_marl": "rainbow_marl.json",
          "tabular": os.path.join("tabular", "fig5_5.json")}
 IN_CLASSICAL = {"structured": "structured_eval", "rollout": "rollout"}  # parts classical_cpp.compare also holds
 MODELS = {"rainbow_cpp": evaluate.DEFAULT_CHECKPOINT["rainbow"], "rainbow_marl": evaluate.DEFAULT_CHECKPOINT["marl"],
@@ -326,6 +326,8 @@ def collect(args: Collect, staging: str) -> list[str]:
             result = {"structured_eval": classical_cpp.compare_structured(args.structured_per_band, args.quiet)}
         elif part == "rollout":
             result = classical_cpp.compare_rollout(args.per_size, args.quiet)
+        elif part == "team_rollout":
+            result = classical_cpp.compare_team_rollout(quiet=args.quiet)
         elif part == "rainbow_cpp":
             result = rainbow_results(args.per_size, args.p2p_maps, model, args.quiet)
         elif part == "rainbow_marl":
@@ -544,6 +546,24 @@ def classical_lines(c: dict) -> tuple[list[str], list[str]]:
                 f"{marl[n]['lower_bound_time_save']:.3f}"] for n in agents]), "",
         f"![multi-agent baselines]({FIGURES['marl_baselines']})"]
     return comparison, baselines
+
+
+def team_rollout_lines(t: dict | None) -> list[str]:
+    """The multiagent rollout planner beside its base and greedy (both with claims) and the lower bound."""
+    if t is None:
+        return [f"*Not collected:* no `{PARTS['team_rollout']}` here; `python report.py collect --parts team_rollout` "
+                "fills it in (the multiagent rollout planner)."]
+    rows = [[dataset, n, str(e["maps"]), f"{e['greedy']['time_save']:.3f}", f"{e['greedy-dead-ends']['time_save']:.3f}",
+             f"**{e['rollout']['time_save']:.3f}**", f"{e['lower_bound_time_save']:.3f}", f"{e['rollout']['s_per_map']:.1f}",
+             str(e["rollout_longer_than_base"])]
+            for dataset in ("marl_eval", "structured_eval") for n, e in t[dataset].items()]
+    where = f"every {_ordinal(t['marl_every'])} marl_eval layout of sizes 10-30"
+    if t["structured_every"]:
+        where += f", every {_ordinal(t['structured_every'])} structured_eval map"
+    return [f"The multiagent rollout planner (`--planner rollout --agents N`, Bertsekas 2020) beside its base, "
+            f"greedy-dead-ends with claims, on {where} (the first N stored starts), mean $t_{{sf}}$:", "",
+            table(["dataset", "agents", "maps", "greedy (claims)", "greedy-dead-ends (claims)", "rollout", "lower bound",
+                   "rollout s/map", "maps where rollout > base"], rows)]
 
 
 def rainbow_lines(rb: dict, c: dict) -> tuple[list[str], list[str], list[str]]:
@@ -795,6 +815,8 @@ def render(results: dict) -> str:
     if results["rainbow_marl"] is not None:
         with reading(paths["rainbow_marl"]):
             multi_agent = marl_lines(results["rainbow_marl"], results["marl_rewards"])
+    with reading(paths["team_rollout"] or "the team rollout results"):
+        team_rollout = team_rollout_lines(results["team_rollout"])
     with reading(paths["tabular"] or paths["fig5_4"] or "the tabular results"):
         tabular = tabular_lines(results["tabular"], results["fig5_4"])
     return "\n".join([
@@ -809,7 +831,7 @@ def render(results: dict) -> str:
         "## Structured maps (planners)", "", *structured, "",
         "## Sensor-based coverage (Figs. 6.17-6.22)", "", *sensor_based, "",
         "## Point-to-point (Fig. 6.23)", "", *point_to_point, "",
-        "## Multi-agent (Figs. 7.11-7.12)", "", *baselines, "", *multi_agent, "",
+        "## Multi-agent (Figs. 7.11-7.12)", "", *baselines, "", *team_rollout, "", *multi_agent, "",
         "## Tabular agent (Fig. 5.4, Table 5.1, Fig. 5.5)", "", *tabular, "",
     ])
 
@@ -992,7 +1014,8 @@ class Collect:
     parts: tuple[str, ...] = tuple(PARTS)
     """results to collect: classical (the planners, structured_eval and rollout included), structured (the planners
     on structured_eval alone), rollout (the rollout planner alone on classical's cpp_eval and MovingAI maps),
-    rainbow_cpp, rainbow_marl, tabular"""
+    team_rollout (the multiagent rollout planner on marl_eval at N = 2, 5, 10 and structured_eval at N = 5: ~45 min on
+    one core), rainbow_cpp, rainbow_marl, tabular"""
     reuse: bool = False
     """collect only the parts whose JSON is missing under --out"""
     per_size: int = 20

@@ -26,23 +26,19 @@ import sys  # noqa: E402
 import time  # noqa: E402
 from dataclasses import dataclass  # noqa: E402
 
-import numpy as np  # noqa: E402
 import tyro  # noqa: E402
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 import classical_cpp as cc  # noqa: E402
-import gridworld  # noqa: E402
-
-PLANNERS = ("greedy", "greedy-dead-ends", "rollout")
 
 
 @dataclass
 class Args:
-    agents: tuple[int, ...] = (2, 5, 10)
+    agents: tuple[int, ...] = cc.TEAM_AGENTS
     """team sizes on marl_eval"""
-    marl_every: int = 100
+    marl_every: int = cc.TEAM_MARL_EVERY
     """every k-th marl_eval layout of sizes 10-30 (100: 21 maps, one of each size)"""
-    structured_every: int = 21
+    structured_every: int = cc.TEAM_STRUCTURED_EVERY
     """every k-th structured_eval map (21: 80 maps, all families and sizes); 0: none"""
     structured_agents: int = 5
     """the team size on structured_eval"""
@@ -50,63 +46,25 @@ class Args:
     """the CPU to pin to (-1: the first one this process may use)"""
 
 
-def structured_subset(agents: int, every: int) -> tuple[list, np.ndarray]:
-    """Every `every`-th structured_eval map with its first `agents` starts (covered), and their sizes."""
-    path = os.path.join(cc.ROOT, "maps", "structured_eval.npz")
-    sizes = np.load(path)["size"][::every]
-    maps = gridworld.load_dataset(path)[::every]
-    return [cc.with_starts(gridworld.Scenario(s.obstacles, s.starts[:agents])) for s in maps], sizes
-
-
-def measure(label: str, agents: int, scenarios: list, sizes: np.ndarray) -> dict:
-    """Every planner on the scenarios: mean time-save factor, the lower bound, the time it takes (with the replay)."""
-    bound = np.mean([cc.lower_bound(s) / max(int((~s.obstacles).sum()) - agents, 1) for s in scenarios])
-    entry = {"maps": len(scenarios), "sizes": [int(sizes.min()), int(sizes.max())],
-             "lower_bound_time_save": round(float(bound), 4)}
-    steps = {}
-    for name in PLANNERS:
-        t0 = time.perf_counter()
-        rows, _ = cc.evaluate(name, scenarios)  # plans 64 maps at a time and replays every path
-        seconds = time.perf_counter() - t0
-        steps[name] = np.array([r["steps"] for r in rows])
-        entry[name] = {"time_save": round(float(np.mean([r["time_save"] for r in rows])), 4),
-                       "s_per_map": round(seconds / len(rows), 3),
-                       "ms_per_team_step": round(1000 * seconds / steps[name].sum(), 2)}
-    worse = int((steps["rollout"] > steps["greedy-dead-ends"]).sum())
-    if worse:
-        raise SystemExit(f"error: {label} N = {agents}: the rollout is longer than its base on {worse} map(s)")
-    r = entry["rollout"]
-    print(f"| {label} | {agents} | {len(scenarios)} | {entry['greedy']['time_save']:.3f} | "
-          f"{entry['greedy-dead-ends']['time_save']:.3f} | **{r['time_save']:.3f}** | {bound:.3f} | "
-          f"{r['s_per_map']:.2f} | {r['ms_per_team_step']:.1f} |", flush=True)
-    return entry
-
-
 def main(args: Args) -> dict:
-    if not args.agents or min(args.agents) < 2 or args.structured_agents < 2:
-        raise SystemExit("error: --agents and --structured-agents must be >= 2 (one agent: benchmarks/rollout_planner.py)")
-    if args.marl_every < 1 or args.structured_every < 0:
-        raise SystemExit("error: --marl-every must be >= 1 and --structured-every >= 0")
     allowed = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else []
     if allowed:
         cpu = allowed[0] if args.cpu < 0 else args.cpu
         if cpu not in allowed:
             raise SystemExit(f"error: --cpu {cpu} is not one of this process's CPUs {allowed}")
         os.sched_setaffinity(0, {cpu})
-    out: dict = {"marl_every": args.marl_every, "structured_every": args.structured_every, "marl_eval": {},
-                 "structured_eval": {}}
     t0 = time.perf_counter()
-    print("| dataset | N | maps | greedy (claims) | greedy-dead-ends (claims) | rollout | lower bound | rollout s/map | "
-          "rollout ms/team step |")
-    print("|---|---|---|---|---|---|---|---|---|")
-    for n in args.agents:
-        scenarios, sizes = cc.marl_eval_subset(n, args.marl_every)
-        out["marl_eval"][str(n)] = measure("marl_eval", n, scenarios, sizes)
-    if args.structured_every:
-        n = args.structured_agents
-        out["structured_eval"][str(n)] = measure("structured_eval", n, *structured_subset(n, args.structured_every))
+    try:
+        out = cc.compare_team_rollout(args.agents, args.marl_every, args.structured_every, args.structured_agents)
+    except ValueError as e:
+        raise SystemExit(f"error: {e}") from None
     out["wall_seconds"] = round(time.perf_counter() - t0, 1)
+    print(cc.team_rollout_table(out))
+    longer = {f"{d} N = {n}": e["rollout_longer_than_base"] for d in ("marl_eval", "structured_eval")
+              for n, e in out[d].items() if e["rollout_longer_than_base"]}
     print("\n" + json.dumps(out))
+    if longer:
+        raise SystemExit(f"error: the rollout is longer than its base on {longer} map(s)")
     return out
 
 
