@@ -198,6 +198,10 @@ class Args:
     one-step rollout of the deterministic heuristic, GridWorldCore.rollout_actions: about half its overlap, planned
     on the full state also in sensor stages, a privileged teacher; milliseconds a label, see docs/rainbow_cpp.md).
     The evaluation's stuck fallback stays the heuristic"""
+    teacher_view: str = "full"
+    """--teacher rollout in sensor stages: plan on the true map (full: a privileged teacher, "learning by cheating",
+    while the student sees only its sensor) or on the agent's known map (known: unknown cells free points of interest,
+    evaluate.py's frontier-rollout); the same in full-information stages. The heuristic always acts on the known map"""
     label_fraction: float = 1.0
     """--teacher rollout: the chance that a world the agent acts in gets its margin label from the rollout (the
     others get the heuristic's), to bound the cost; worlds the teacher acts in always use the rollout"""
@@ -1070,14 +1074,19 @@ def progress_bar(total: int, initial: int, quiet: bool) -> tqdm:
                 disable=quiet or not sys.stdout.isatty())
 # ============================================================================= end of the shared code
 TEACHERS = ("heuristic", "rollout")  # --teacher
+TEACHER_VIEWS = ("full", "known")  # --teacher-view
 
 
 def check_teacher(args: Args) -> None:
-    """--teacher and --label-fraction out of range are one-line errors."""
+    """--teacher, --teacher-view and --label-fraction out of range are one-line errors."""
     if args.teacher not in TEACHERS:
         raise ValueError(f"--teacher must be one of {', '.join(TEACHERS)}, got {args.teacher!r}")
     if not 0.0 <= args.label_fraction <= 1.0:
         raise ValueError(f"--label-fraction must be in [0, 1], got {args.label_fraction}")
+    if args.teacher_view not in TEACHER_VIEWS:
+        raise ValueError(f"--teacher-view must be one of {', '.join(TEACHER_VIEWS)}, got {args.teacher_view!r}")
+    if args.teacher_view != "full" and args.teacher != "rollout":
+        raise ValueError(f"--teacher-view {args.teacher_view} needs --teacher rollout (the heuristic acts on the known map)")
 
 
 def rollout_labels(core: gridworld.GridWorldCore, label: np.ndarray, teach: np.ndarray, args: Args,
@@ -1088,7 +1097,7 @@ def rollout_labels(core: gridworld.GridWorldCore, label: np.ndarray, teach: np.n
     need = teach | (labelled(args) & (rng.random(len(teach)) < args.label_fraction))
     w = np.flatnonzero(need)
     label = label.copy()
-    label[w] = core.rollout_actions(w, args.heuristic_dead_ends)
+    label[w] = core.rollout_actions(w, args.heuristic_dead_ends, view=args.teacher_view)
     return label, w
 
 

@@ -48,20 +48,26 @@ import gridworld
 ROOT = os.path.dirname(os.path.abspath(__file__))
 RESULTS = os.path.join(ROOT, "results")
 PARTS = {"classical": "classical_cpp.json", "structured": "planners_structured.json", "rollout": "rollout.json",
-         "team_rollout": "team_rollout.json", "rainbow_cpp": "rainbow_cpp.json", "rainbow_marl": "rainbow_marl.json",
+         "team_rollout": "team_rollout.json", "sensors": "rainbow_sensors.json",
+         "rainbow_cpp": "rainbow_cpp.json", "rainbow_marl": "rainbow_marl.json",
          "tabular": os.path.join("tabular", "fig5_5.json")}
 IN_CLASSICAL = {"structured": "structured_eval", "rollout": "rollout"}  # parts classical_cpp.compare also holds
-MODELS = {"rainbow_cpp": evaluate.DEFAULT_CHECKPOINT["rainbow"], "rainbow_marl": evaluate.DEFAULT_CHECKPOINT["marl"],
+MODELS = {"rainbow_cpp": evaluate.DEFAULT_CHECKPOINT["rainbow"], "sensors": evaluate.DEFAULT_CHECKPOINT["rainbow"],
+          "rainbow_marl": evaluate.DEFAULT_CHECKPOINT["marl"],
           "tabular": evaluate.DEFAULT_CHECKPOINT["tabular"]}
-SCRIPTS = {"rainbow_cpp": "rainbow_cpp.py", "rainbow_marl": "rainbow_marl.py", "tabular": "tabular_q.py"}
+SCRIPTS = {"rainbow_cpp": "rainbow_cpp.py", "sensors": "rainbow_cpp.py", "rainbow_marl": "rainbow_marl.py",
+           "tabular": "tabular_q.py"}
 CH5_EVAL = os.path.join("maps", "ch5_eval.npz")  # Fig. 5.5's maps, with their size and requested obstacles
 CAMERA_RANGE = 3  # the sensor-based evaluation of the rainbow_cpp model (§6.5.3)
+SENSOR_RANGES, SENSOR_FAILURES = (1, 2, 3, 4, 5), (0.25, 0.5)  # Figs. 6.20-6.21 (K) and 6.22 (camera r = 3)
+SENSOR_POLICIES = ("rainbow", "frontier", "frontier-row-major")  # the agent beside the exploration baselines
+SENSOR_PER_SIZE, SENSOR_PER_BAND = 2, 1  # the sensors part: 52 cpp_eval maps, 16 structured_eval maps
 MARL_EVERY, MARL_AGENTS = 10, range(1, 16)  # rainbow_marl: every 10th marl_eval layout, N = 1..15 (Fig. 7.11)
 FAULTY_AT, FAULTY_AGENTS = 0.5, (2, 5, 10)  # §7.5.3.3: the last agent freezes halfway
 REWARDS = ("greedy", "pretrained", "competitive", "cooperative", "size_invariant")  # results/marl_rewards/ runs
 FIGURES = {"planners_by_size": "planners_overlap_by_size.png", "planners_external": "planners_external.png",
            "planners_structured": "planners_structured.png", "marl_baselines": "marl_baselines.png",
-           "rainbow_cpp": "rainbow_overlap_by_size.png",
+           "rainbow_cpp": "rainbow_overlap_by_size.png", "sensors": "rainbow_sensors.png",
            "rainbow_marl": "rainbow_marl_time_save.png", "fig5_4": "tabular_fig5_4.png", "fig5_5": "tabular_fig5_5.png"}
 # The numbers the report holds the results against, each with its source; no other number in the text is typed.
 REFERENCE = {
@@ -234,6 +240,52 @@ def rainbow_results(per_size: int, p2p_maps: int, model: str, quiet: bool = Fals
     return result
 
 
+def sensor_settings() -> dict[str, dict]:
+    """The sensors part's settings: full information, camera and LiDAR at each of SENSOR_RANGES, and camera r = 3
+    under each of SENSOR_FAILURES; key -> evaluate.Args fields."""
+    out = {"full": {}}
+    for sensor in ("camera", "lidar"):
+        out |= {f"{sensor}_r{k}": {"sensor": sensor, "sensor_range": k} for k in SENSOR_RANGES}
+    out |= {f"camera_r{CAMERA_RANGE}_failure{round(100 * f)}": {"sensor": "camera", "sensor_range": CAMERA_RANGE,
+                                                              "sensor_failure": f} for f in SENSOR_FAILURES}
+    return out
+
+
+def sensor_results(model: str, per_size: int = SENSOR_PER_SIZE, per_band: int = SENSOR_PER_BAND,
+                   quiet: bool = False) -> dict:
+    """Figs. 6.17-6.22: a rainbow_cpp model (heuristic fallback on) beside the frontier baselines of evaluate.py under
+    every sensor_settings() setting, on the first `per_size` cpp_eval maps of each size and `per_band` structured_eval
+    maps per family and size band: mean overlap, completion and heuristic share, per size band on cpp_eval and per
+    family on structured_eval."""
+    scenarios, sizes = classical_cpp.cpp_eval_subset(per_size)
+    cpp = [(f"cpp_eval.npz[{z}x{z}]", classical_cpp.with_starts(s)) for s, z in zip(scenarios, sizes)]
+    scenarios, families, _ = classical_cpp.structured_eval_subset(per_band)
+    structured = [(f"structured_eval.npz[{f}]", s) for s, f in zip(scenarios, families)]
+
+    def summary(rows, groups):
+        def stats(g):
+            return dict(overlap=round(float(np.mean([r["overlap"] for r in g])), 4),
+                        completion=round(float(np.mean([r["completed"] for r in g])), 4),
+                        heuristic_share=round(float(np.mean([r["heuristic_steps"] / max(r["steps"], 1) for r in g])), 4))
+        out = stats(rows)
+        out["by"] = {k: stats([r for r, key in zip(rows, groups) if key == k]) for k in dict.fromkeys(groups)}
+        return out
+
+    bands = [next(f"{a}-{b}" for a, b in classical_cpp.REPORT_BANDS if a <= z <= b) for z in sizes]
+    result = {"per_size": per_size, "per_band": per_band, "model": _model_json(model), "cpp_eval": {},
+              "structured_eval": {}}
+    settings = sensor_settings()
+    with _bar(len(settings) * len(SENSOR_POLICIES), "sensors", quiet) as bar:
+        for key, kw in settings.items():
+            for policy in SENSOR_POLICIES:
+                args = evaluate.Args(policy=policy, checkpoint=model if policy == "rainbow" else None, quiet=True, **kw)
+                run = evaluate.run_rainbow if policy == "rainbow" else evaluate.run_frontier
+                for name, episodes, groups in (("cpp_eval", cpp, bands), ("structured_eval", structured, families)):
+                    result[name].setdefault(key, {})[policy] = summary(run(args, episodes), list(groups))
+                bar.update()
+    return result
+
+
 def marl_results(model: str, quiet: bool = False, every: int = MARL_EVERY, agents=MARL_AGENTS) -> dict:
     """A rainbow_marl model on marl_eval (every `every`-th layout of sizes 10-30) with N = `agents` beside the
     greedy planners with claims, and the faulty-agent experiment of §7.5.3.3 at N = FAULTY_AGENTS."""
@@ -328,6 +380,8 @@ def collect(args: Collect, staging: str) -> list[str]:
             result = classical_cpp.compare_rollout(args.per_size, args.quiet)
         elif part == "team_rollout":
             result = classical_cpp.compare_team_rollout(quiet=args.quiet)
+        elif part == "sensors":
+            result = sensor_results(model, quiet=args.quiet)
         elif part == "rainbow_cpp":
             result = rainbow_results(args.per_size, args.p2p_maps, model, args.quiet)
         elif part == "rainbow_marl":
@@ -564,6 +618,48 @@ def team_rollout_lines(t: dict | None) -> list[str]:
             f"greedy-dead-ends with claims, on {where} (the first N stored starts), mean $t_{{sf}}$:", "",
             table(["dataset", "agents", "maps", "greedy (claims)", "greedy-dead-ends (claims)", "rollout", "lower bound",
                    "rollout s/map", "maps where rollout > base"], rows)]
+
+
+def sensor_lines(sr: dict | None) -> list[str]:
+    """Figs. 6.17-6.22 from the sensors part: the agent beside the frontier baselines under each sensor setting."""
+    if sr is None:
+        return [NOT_COLLECTED.format(file=PARTS["sensors"], part="sensors", model=MODELS["sensors"],
+                                     script=SCRIPTS["sensors"])]
+    head = ["setting", "rainbow + heuristic", "completed", "heuristic share", "frontier", "completed",
+            "frontier-row-major"]
+
+    def row(label, e):
+        a, f, r = (e[p] for p in SENSOR_POLICIES)
+        return [label, f"**{a['overlap']:.3f}**", f"{100 * a['completion']:.0f}%", f"{a['heuristic_share']:.2f}",
+                f"{f['overlap']:.3f}", f"{100 * f['completion']:.0f}%", f"{r['overlap']:.3f}"]
+
+    m = sr["model"]
+    stages = m.get("args", {}).get("stages") or "the built-in stages"
+    lines = [f"The shipped `{MODELS['sensors']}` (trained on `{stages}`) with the heuristic fallback, beside the "
+             "exploration baselines of `evaluate.py` on the agent's known map under the same sensor (`frontier`: the "
+             "navigation heuristic with dead-ends-first ties, else the nearest frontier; `frontier-row-major`), on the "
+             f"same episodes: the first {sr['per_size']} `cpp_eval` maps of each size and {sr['per_band']} "
+             "`structured_eval` map(s) per family and size band. Mean overlap; completion and the heuristic's share of "
+             "the agent's steps beside it.", ""]
+    for name in ("cpp_eval", "structured_eval"):
+        e = sr[name]
+        lines += [f"**Figs. 6.20-6.21** (`{name}`): camera and LiDAR of range K (they coincide at K = 1, §6.5.3.2):", "",
+                  table(head, [row("full information", e["full"])]
+                        + [row(f"{sensor} K = {k}", e[f"{sensor.lower()}_r{k}"]) for sensor in ("camera", "LiDAR")
+                           for k in SENSOR_RANGES if f"{sensor.lower()}_r{k}" in e]), "",
+                  f"**Fig. 6.22** (`{name}`): camera r = {CAMERA_RANGE} with a share of the sensor readings dropped:", "",
+                  table(head, [row(f"failure {round(100 * f)}%", e[f"camera_r{CAMERA_RANGE}" if f == 0 else
+                                                                 f"camera_r{CAMERA_RANGE}_failure{round(100 * f)}"])
+                               for f in (0.0, *SENSOR_FAILURES)]), ""]
+    for name, what in (("cpp_eval", "size band"), ("structured_eval", "family")):
+        full, camera = sr[name]["full"], sr[name][f"camera_r{CAMERA_RANGE}"]
+        lines += [f"**Figs. 6.17-6.19** (`{name}`): camera r = {CAMERA_RANGE} against full information by {what}:", "",
+                  table([what, "rainbow, full information", f"rainbow, camera r = {CAMERA_RANGE}", "frontier, camera",
+                         "frontier-row-major, camera"],
+                        [[k, f"{full['rainbow']['by'][k]['overlap']:.3f}", f"{camera['rainbow']['by'][k]['overlap']:.3f}",
+                          f"{camera['frontier']['by'][k]['overlap']:.3f}",
+                          f"{camera['frontier-row-major']['by'][k]['overlap']:.3f}"] for k in camera["rainbow"]["by"]]), ""]
+    return lines + [f"![agent and frontier baselines by sensor range]({FIGURES['sensors']})"]
 
 
 def rainbow_lines(rb: dict, c: dict) -> tuple[list[str], list[str], list[str]]:
@@ -815,6 +911,8 @@ def render(results: dict) -> str:
     if results["rainbow_marl"] is not None:
         with reading(paths["rainbow_marl"]):
             multi_agent = marl_lines(results["rainbow_marl"], results["marl_rewards"])
+    with reading(paths["sensors"] or "the sensors results"):
+        sensors = sensor_lines(results["sensors"])
     with reading(paths["team_rollout"] or "the team rollout results"):
         team_rollout = team_rollout_lines(results["team_rollout"])
     with reading(paths["tabular"] or paths["fig5_4"] or "the tabular results"):
@@ -829,7 +927,7 @@ def render(results: dict) -> str:
         "## Single agent, full information (Figs. 6.13-6.16)", "", *full_info, "",
         "## Comparison with classical planners (Table 6.4)", "", *comparison, "",
         "## Structured maps (planners)", "", *structured, "",
-        "## Sensor-based coverage (Figs. 6.17-6.22)", "", *sensor_based, "",
+        "## Sensor-based coverage (Figs. 6.17-6.22)", "", *sensor_based, "", *sensors, "",
         "## Point-to-point (Fig. 6.23)", "", *point_to_point, "",
         "## Multi-agent (Figs. 7.11-7.12)", "", *baselines, "", *team_rollout, "", *multi_agent, "",
         "## Tabular agent (Fig. 5.4, Table 5.1, Fig. 5.5)", "", *tabular, "",
@@ -983,6 +1081,25 @@ def plot_tabular(fig55: dict | None, runs: dict, folder: str) -> list[str]:
     return written
 
 
+def plot_sensors(sr: dict, folder: str) -> list[str]:
+    """Figs. 6.20-6.21: mean overlap against the sensor range, the agent and the frontier baseline, per sensor."""
+    import matplotlib.pyplot as plt
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4), sharey=True)
+    for ax, name in zip(axes, ("cpp_eval", "structured_eval")):
+        e = sr[name]
+        for sensor, colour in (("camera", "tab:blue"), ("lidar", "tab:orange")):
+            ks = [k for k in SENSOR_RANGES if f"{sensor}_r{k}" in e]
+            for policy, style in (("rainbow", "-o"), ("frontier", "--s")):
+                ax.plot(ks, [e[f"{sensor}_r{k}"][policy]["overlap"] for k in ks], style, color=colour,
+                        label=f"{policy}, {sensor}")
+        ax.axhline(e["full"]["rainbow"]["overlap"], color="grey", lw=1, label="rainbow, full information")
+        ax.set(xlabel="sensor range K", title=name, xticks=list(SENSOR_RANGES))
+        ax.grid(alpha=0.3)
+    axes[0].set_ylabel("mean overlap $O_v$")
+    axes[1].legend(fontsize=8)
+    return [_save(fig, folder, "sensors")]
+
+
 def plot(results: dict, folder: str) -> list[str]:
     """Every figure the results allow, written into `folder`; the paths written."""
     import matplotlib
@@ -997,6 +1114,9 @@ def plot(results: dict, folder: str) -> list[str]:
     if results["rainbow_cpp"] is not None:
         with reading(paths["rainbow_cpp"]):
             written += plot_rainbow(results["rainbow_cpp"], results["classical"], folder)
+    if results["sensors"] is not None:
+        with reading(paths["sensors"]):
+            written += plot_sensors(results["sensors"], folder)
     if results["rainbow_marl"] is not None:
         with reading(paths["rainbow_marl"]):
             written += plot_marl(results["rainbow_marl"], results["classical"], folder)
@@ -1015,7 +1135,8 @@ class Collect:
     """results to collect: classical (the planners, structured_eval and rollout included), structured (the planners
     on structured_eval alone), rollout (the rollout planner alone on classical's cpp_eval and MovingAI maps),
     team_rollout (the multiagent rollout planner on marl_eval at N = 2, 5, 10 and structured_eval at N = 5: ~45 min on
-    one core), rainbow_cpp, rainbow_marl, tabular"""
+    one core), sensors (rainbow_cpp's model beside the frontier baselines under camera and LiDAR of range 1-5 and
+    sensor failures, Figs. 6.17-6.22), rainbow_cpp, rainbow_marl, tabular"""
     reuse: bool = False
     """collect only the parts whose JSON is missing under --out"""
     per_size: int = 20

@@ -42,9 +42,11 @@ def restore_sigint():
 def small_report_maps(monkeypatch):
     """A function cutting the planner report's map subsets to a few small maps (cpp_eval sizes up to `max_size` in
     two bands, two external episodes on empty-8-8, `layouts` marl_eval layouts, at most `structured` structured_eval
-    maps per family, of size 10), so that a report runs in seconds."""
+    maps per family, of size 10, and the first `structured` structured_eval maps for the team rollout), so that a
+    report runs in seconds."""
     cpp, ext, marl, structured_subset = cc.cpp_eval_subset, cc.external_episodes, cc.marl_eval_subset, \
         cc.structured_eval_subset
+    team = cc.structured_team_subset
 
     def shrink(max_size: int, layouts: int, structured: int = 1) -> None:
         monkeypatch.setattr(cc, "STRUCTURED_BANDS", ((10, 10),))
@@ -59,6 +61,8 @@ def small_report_maps(monkeypatch):
         monkeypatch.setattr(cc, "external_episodes", lambda: [e for e in ext() if e[0] == "empty-8-8.map"][:2])
         monkeypatch.setattr(cc, "marl_eval_subset", lambda agents, every=cc.MARL_EVERY: tuple(
             x[:layouts] for x in marl(agents, every)))
+        monkeypatch.setattr(cc, "structured_team_subset", lambda agents, every: tuple(
+            x[:structured] for x in team(agents, 1)))
 
     return shrink
 

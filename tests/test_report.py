@@ -63,15 +63,16 @@ def _cli(script: str, *args, timeout=120):
 
 # ----------------------------------------------------------------------------- render: pure, from the JSON
 def test_render_keeps_every_table_row_of_the_committed_results_md():
-    text = report.render(_committed())
+    results = _committed()
+    text = report.render(results)
     committed = (RESULTS / "RESULTS.md").read_text()
     rewards = committed[committed.index("| reward |"):].split("\n\n")[0] if "| reward |" in committed else ""
     lost = set(_table_rows(committed)) - set(_table_rows(text)) - set(_table_rows(rewards))  # rewards: + a column
     assert not lost, sorted(lost)[:5]
     headings = [ln for ln in committed.splitlines() if ln.startswith("## ")]
     assert all(h in text.splitlines() for h in headings)
-    for figure in report.FIGURES.values():
-        assert f"({figure})" in text
+    for key, figure in report.FIGURES.items():  # the sensors figure comes with its part
+        assert (f"({figure})" in text) == (key != "sensors" or results["sensors"] is not None)
 
 
 def test_render_is_a_pure_function_of_the_json(monkeypatch):
@@ -148,10 +149,11 @@ def test_reference_numbers_come_from_the_one_constant():
 
 def test_missing_learned_parts_say_not_collected():
     results = _committed()
-    results["rainbow_cpp"] = results["rainbow_marl"] = results["tabular"] = None
+    results["rainbow_cpp"] = results["rainbow_marl"] = results["tabular"] = results["sensors"] = None
     text = report.render(results)
     structured = "structured_eval" not in report.planners(results)  # "Not collected" too while it is missing
-    assert text.count("*Not collected:*") == 3 + 1 + 1 + structured  # rainbow's three sections, marl's, tabular's Fig. 5.5
+    team = results["team_rollout"] is None
+    assert text.count("*Not collected:*") == 3 + 1 + 1 + structured + team + 1  # rainbow's 3, marl's, Fig. 5.5, sensors
     assert "`python report.py collect --parts rainbow_marl`" in text
     assert "**Fig. 5.4**" in text  # the training runs are there all the same
 
@@ -321,6 +323,28 @@ def test_collect_structured_and_rollout_on_tiny_maps(tmp_path, small_report_maps
     assert "\n| rollout | " in text and "Rollout's gap to LKH" in text
 
 
+def test_collect_team_rollout_on_tiny_maps(tmp_path, small_report_maps):
+    small_report_maps(7, 2, structured=1)
+    out = tmp_path / "team"
+    assert report.main(report.Collect(out=str(out), parts=("team_rollout",), quiet=True)) == ["team_rollout.json"]
+    t = json.loads((out / "team_rollout.json").read_text())
+    assert list(t["marl_eval"]) == [str(n) for n in cc.TEAM_AGENTS] and list(t["structured_eval"]) == ["5"]
+    for e in [*t["marl_eval"].values(), *t["structured_eval"].values()]:
+        ts = {name: e[name]["time_save"] for name in cc.TEAM_PLANNERS}
+        assert e["rollout_longer_than_base"] == 0
+        assert e["lower_bound_time_save"] <= ts["rollout"] <= ts["greedy-dead-ends"] + 1e-9
+    assert t["provenance"]["flags"]["parts"] == ["team_rollout"]
+    rows = _table_rows("\n".join(report.team_rollout_lines(t)))
+    assert len(rows) == 1 + len(cc.TEAM_AGENTS) + 1 and rows[1].startswith("| marl_eval | 2 | 2 | ")
+    results = report.load_results(str(out), str(RESULTS))
+    assert results["paths"]["team_rollout"] == str(out / "team_rollout.json")
+    assert "The multiagent rollout planner" in report.render(results)
+
+
+def test_team_rollout_missing_says_how_to_collect_it():
+    assert "`python report.py collect --parts team_rollout`" in report.team_rollout_lines(None)[0]
+
+
 # ----------------------------------------------------------------------------- render / plot commands
 def test_render_and_plot_write_into_out_only(tmp_path):
     committed = _hashes(RESULTS)
@@ -343,9 +367,9 @@ def test_all_with_reuse_runs_nothing_when_every_json_is_there(tmp_path, monkeypa
     def forbidden(*a, **k):
         raise AssertionError("--reuse must not re-run a part whose JSON is there")
 
-    for name in ("compare", "compare_structured", "compare_rollout"):
+    for name in ("compare", "compare_structured", "compare_rollout", "compare_team_rollout"):
         monkeypatch.setattr(cc, name, forbidden)
-    for name in ("rainbow_results", "marl_results", "tabular_results"):
+    for name in ("rainbow_results", "sensor_results", "marl_results", "tabular_results"):
         monkeypatch.setattr(report, name, forbidden)
     jsons = {k: v for k, v in _hashes(out).items() if k.endswith(".json")}
     written = report.main(report.All(out=str(out), reuse=True, quiet=True))
@@ -360,7 +384,7 @@ def test_a_part_whose_model_is_not_trained_is_skipped(tmp_path, monkeypatch, cap
     assert "rainbow_marl: skipped" in capsys.readouterr().out
     shutil.copy(RESULTS / "classical_cpp.json", tmp_path / "classical_cpp.json")
     assert report.parts_to_collect(report.Collect(out=str(tmp_path), reuse=True)) == [
-        "structured", "rollout", "rainbow_cpp", "tabular"]  # the committed classical_cpp.json holds neither
+        "structured", "rollout", "team_rollout", "sensors", "rainbow_cpp", "tabular"]  # classical_cpp.json alone
 
 
 # ----------------------------------------------------------------------------- collect, on tiny settings
@@ -396,8 +420,10 @@ def tiny(tmp_path, monkeypatch, small_report_maps):
         "args": {"algorithm": "q-learning", "min_size": 4, "size": 6, "number_obstacles": 2, "obstacles_random": True,
                  "corner_starts": False}, "episodes": 5, "states": 0, "wall_seconds": 1.0, "episodes_per_second": 5.0,
         "machine": "a test machine", "curve_rho": [1.0]}))
+    monkeypatch.setattr(report, "SENSOR_RANGES", (1, 3))
+    rainbow = _tiny_model(rainbow_cpp, models / "rainbow_cpp.pt", {"heuristic_dead_ends": True})
     monkeypatch.setattr(report, "MODELS", {
-        "rainbow_cpp": _tiny_model(rainbow_cpp, models / "rainbow_cpp.pt", {"heuristic_dead_ends": True}),
+        "rainbow_cpp": rainbow, "sensors": rainbow,
         "rainbow_marl": _tiny_model(rainbow_marl, models / "rainbow_marl.pt", {}), "tabular": str(table)})
     return tmp_path
 
@@ -424,6 +450,14 @@ def test_all_on_tiny_settings_writes_into_out_only(tiny):
     rb = json.loads((out / "rainbow_cpp.json").read_text())
     assert sorted(rb["full"], key=int) == ["5", "6", "7"] and rb["p2p"]["maps"] == 2 and rb["model"]["stage"] == "tiny"
     assert all(v["completion"] == 1.0 for v in rb["full"].values())  # the heuristic finishes what the net cannot
+    sr = json.loads((out / "rainbow_sensors.json").read_text())
+    keys = ["full", "camera_r1", "camera_r3", "lidar_r1", "lidar_r3", "camera_r3_failure25", "camera_r3_failure50"]
+    assert list(sr["cpp_eval"]) == keys and list(sr["cpp_eval"]["full"]) == list(report.SENSOR_POLICIES)
+    for name in ("cpp_eval", "structured_eval"):
+        for setting in sr[name].values():
+            assert all(p["completion"] == 1.0 for p in setting.values())  # the fallback finishes what the net cannot
+        assert sr[name]["camera_r1"] == sr[name]["lidar_r1"]  # at K = 1 the two sensors see the same cells
+    assert list(sr["structured_eval"]["full"]["frontier"]["by"]) == list(gw.STRUCTURED_FAMILIES)
     mr = json.loads((out / "rainbow_marl.json").read_text())
     assert list(mr["agents"]) == ["1", "2"] and list(mr["faulty"]) == ["2"] and mr["agents"]["2"]["maps"] == 2
     fig55 = json.loads((out / "tabular" / "fig5_5.json").read_text())

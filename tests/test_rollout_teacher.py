@@ -3,7 +3,8 @@ and rainbow_cpp's --teacher rollout / --label-fraction.
 
 rollout_actions: beats the heuristic's first move on a hand-made map, equals classical_cpp.rollout_many's first
 move on random maps (fresh and part-covered), leaves its core alone, handles finished worlds and plans on the full
-state in sensor tasks. rainbow_cpp: a tiny --teacher rollout run works and records its flags; bad values are
+state in sensor tasks. rainbow_cpp: a tiny --teacher rollout run works and records its flags; --teacher-view plans on
+the true or the known map; bad values are
 one-line ValueErrors; --teacher heuristic is the run it always was.
 """
 from __future__ import annotations
@@ -142,7 +143,32 @@ def test_heuristic_teacher_is_the_default_run(tmp_path, monkeypatch, restore_sig
     assert weights_hash(tmp_path, "a") == weights_hash(tmp_path, "b")
 
 
+@pytest.mark.parametrize("view", ["full", "known"])
+def test_teacher_view_picks_the_map_the_rollout_plans_on(view):
+    """Under a range-1 camera mid-episode, --teacher-view full labels with the rollout on the true map, known with the
+    rollout on the agent's known map (evaluate.py's frontier-rollout); the two differ in some worlds."""
+    core = core_of(random_maps(16, seed=3), sensor="camera", sensor_range=1)
+    core.step(core.heuristic_actions(False, True))
+    args = rc.Args(teacher="rollout", teacher_view=view, margin_loss=1.0)
+    heuristic = core.heuristic_actions(False, True)[:, 0]
+    label, w = rc.rollout_labels(core, heuristic, np.ones(core.B, bool), args, np.random.default_rng(0))
+    assert w.tolist() == list(range(core.B))
+    assert label.tolist() == core.rollout_actions(view=view).tolist()
+    assert core.rollout_actions(view="full").tolist() != core.rollout_actions(view="known").tolist()
+
+
+def test_known_view_teacher_run_records_its_flag(tmp_path, monkeypatch, restore_sigint):
+    monkeypatch.chdir(tmp_path)
+    stages = tmp_path / "camera.yaml"
+    stages.write_text("camera: {size: 6, sensor: camera, sensor_range: 2, number_obstacles: 4, base_steps: 200}\n")
+    rc.main(tiny(tmp_path, teacher="rollout", teacher_view="known", stages=str(stages)))
+    info = json.loads((tmp_path / "m.json").read_text())
+    assert info["args"]["teacher_view"] == "known"
+
+
 @pytest.mark.parametrize("kw, msg", [(dict(teacher="oracle"), "--teacher must be one of heuristic, rollout"),
+                                     (dict(teacher="rollout", teacher_view="map"), "--teacher-view must be one of full"),
+                                     (dict(teacher_view="known"), "--teacher-view known needs --teacher rollout"),
                                      (dict(label_fraction=1.5), r"--label-fraction must be in \[0, 1\]"),
                                      (dict(label_fraction=-0.1), r"--label-fraction must be in \[0, 1\]")])
 def test_bad_teacher_flags_are_one_line_errors(tmp_path, monkeypatch, restore_sigint, kw, msg):
