@@ -192,6 +192,14 @@ class Args:
     rare departures from the heuristic: ~1% of the rollout's labels)"""
     heuristic_random_ties: bool = False
     """the heuristic breaks ties at random (§6.3.1) instead of by the first cell"""
+    teacher: str = "heuristic"
+    """the expert that acts under §6.4.2.4's imitation conditions and labels replayed states for --margin-loss:
+    heuristic (the navigation heuristic with claims, as set by the flags beside it) or rollout (the multiagent
+    rollout of greedy-dead-ends with claims, GridWorldCore.team_rollout_actions: each agent's move in index order,
+    the others on the heuristic; planned on the full state; ~0.1 s a world at sizes 10-30, see docs/rainbow_marl.md)"""
+    label_fraction: float = 1.0
+    """--teacher rollout: the chance that a world the agents act in gets its margin labels from the rollout (the
+    others get the heuristic's), to bound the cost; worlds where the teacher acts always use the rollout"""
     heuristic_dead_ends: bool = True
     """of equally near targets the heuristic takes the one with the fewest uncovered neighbours
     first (Warnsdorff's rule, not in the dissertation; a better teacher and fallback);
@@ -1065,6 +1073,29 @@ def progress_bar(total: int, initial: int, quiet: bool) -> tqdm:
 
 
 # ----------------------------------------------------------------------------- multi-agent helpers
+TEACHERS = ("heuristic", "rollout")  # --teacher
+
+
+def check_teacher(args: Args) -> None:
+    """--teacher and --label-fraction out of range are one-line errors."""
+    if args.teacher not in TEACHERS:
+        raise ValueError(f"--teacher must be one of {', '.join(TEACHERS)}, got {args.teacher!r}")
+    if not 0.0 <= args.label_fraction <= 1.0:
+        raise ValueError(f"--label-fraction must be in [0, 1], got {args.label_fraction}")
+
+
+def team_rollout_labels(core: gridworld.GridWorldCore, label: np.ndarray, teach: np.ndarray, args: Args,
+                        rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """--teacher rollout: the heuristic's (B, N) labels with the multiagent rollout's in the worlds where the teacher
+    acts for some agent and, with a margin loss, in a label_fraction of the others, one batched team_rollout_actions
+    call; returns the labels and the worlds the rollout labelled."""
+    need = teach.any(1) | (labelled(args) & (rng.random(len(teach)) < args.label_fraction))
+    w = np.flatnonzero(need)
+    label = label.copy()
+    label[w] = core.team_rollout_actions(w, args.heuristic_dead_ends)
+    return label, w
+
+
 def load_stages(args: Args) -> list[gridworld.EnvConfig]:
     if args.reward_structure not in gridworld.STRUCTURES:
         raise ValueError(f"--reward-structure must be one of {gridworld.STRUCTURES}, got {args.reward_structure!r}")
@@ -1174,6 +1205,7 @@ def evaluate_policy(q: QNetwork, scenarios: list, frames: int, sensor: str = "fu
 def main(args: Args) -> None:
     # TRY NOT TO MODIFY: flags, files read and seeding; nothing is written before all of them check out
     check_flags(args)
+    check_teacher(args)
     stages = load_stages(args)
     if args.buffer_size < 64 * args.num_envs * max(s.number_agents for s in stages):
         raise ValueError(f"--buffer-size {args.buffer_size}: need buffer_size >= 64 * num_envs * the most agents "
@@ -1195,6 +1227,7 @@ def main(args: Args) -> None:
     core = None
     yardstick: dict = {}  # stage index -> the heuristic alone on that stage's evaluation maps
     updates_due, last_log, last_loss_log, t0 = 0.0, global_step, global_step, time.time() - wall
+    n_labels, label_time = 0, 0.0  # --teacher rollout: its labelled worlds and the seconds they took
     latest = ""
     stop = {"now": False}
     previous_handler = signal.signal(signal.SIGINT, lambda *_: stop.update(now=True))  # Ctrl-C: save, exit
@@ -1252,6 +1285,11 @@ def main(args: Args) -> None:
         if teach.any() or labelled(args):  # the hint is this heuristic's move when ties are not random
             label = (obs["hint"] if args.hint and not args.heuristic_random_ties else
                      core.heuristic_actions(args.heuristic_random_ties, args.heuristic_dead_ends).ravel())
+        if args.teacher == "rollout" and label is not None:
+            tick = time.perf_counter()
+            label, w = team_rollout_labels(core, label.reshape(B, N), teach.reshape(B, N), args, rng)
+            label = label.ravel()
+            n_labels, label_time = n_labels + len(w), label_time + time.perf_counter() - tick
         if teach.any():  # a heuristic without a target (WAIT) leaves the agent its own move
             action = np.where(teach & (label < gridworld.WAIT), label, action)
 
@@ -1328,10 +1366,14 @@ def main(args: Args) -> None:
         if global_step - last_log >= 1000:
             sps = int(global_step / max(time.time() - t0, 1e-9))
             writer.add_scalar("charts/SPS", sps, global_step)
-            bar.set_postfix_str(f"{stages[stage_index].name}, SPS {sps}{latest}", refresh=False)
+            rate = ""
+            if args.teacher == "rollout" and label_time > 0:
+                writer.add_scalar("charts/labels_per_s", n_labels / label_time, global_step)
+                rate = f", labelled worlds/s {n_labels / label_time:.1f}"
+            bar.set_postfix_str(f"{stages[stage_index].name}, SPS {sps}{rate}{latest}", refresh=False)
             if bar.disable and not args.quiet:
                 print(f"step {global_step:,}/{total:,} stage {stages[stage_index].name} SPS {sps} "
-                      f"({sps * core.active.sum() // B} agent transitions/s)", flush=True)
+                      f"({sps * core.active.sum() // B} agent transitions/s){rate}", flush=True)
             last_log = global_step
         if args.eval_every and global_step % args.eval_every < B:
             stage = stages[stage_index]
@@ -1363,6 +1405,9 @@ def main(args: Args) -> None:
     writer.close()
     signal.signal(signal.SIGINT, previous_handler)
     print(f"saved {os.path.join(run_dir, 'checkpoint.pt')} and {args.export} at step {global_step:,}")
+    if args.teacher == "rollout":
+        print(f"rollout teacher: {n_labels:,} labelled worlds in {label_time:.1f} s, "
+              f"{n_labels / max(label_time, 1e-9):.1f} a second")
 
 
 if __name__ == "__main__":
