@@ -411,7 +411,8 @@ def _row(name: str, s: Scenario, m: dict) -> dict:
                 n_free=int((~s.obstacles).sum()), agents=len(s.starts), start=json.dumps(s.starts.tolist()),
                 steps=m["steps"], revisits=m["revisits"], overlap=round(m["overlap"], 6),
                 time_save=round(m["time_save"], 6), completed=m["completed"],
-                truncated=m.get("truncated", False), heuristic_steps=m.get("heuristic_steps", 0))
+                truncated=m.get("truncated", False), heuristic_steps=m.get("heuristic_steps", 0),
+                **({"walled_off": m["walled_off"]} if "walled_off" in m else {}))
 
 
 def summarize(rows: list[dict]) -> dict:

@@ -1406,6 +1406,25 @@ class GridWorldCore:
             self.frozen[w, agent] = True
             self.any_frozen = True
 
+    def unreachable_poi(self, worlds=None) -> np.ndarray:
+        """Per given world (all by default; a bool mask or indices), the uncovered points of interest of the true map
+        that no working agent can reach, frozen agents' cells being blocked (§7.5.3.3: a faulty agent in a corridor
+        walls off what lies behind it, so no team can complete the map)."""
+        w = self._world_indices(worlds)
+        c, N = self.c, self.N
+        inner = (w, slice(c, c + self.H), slice(c, c + self.W))
+        frozen_cells = np.zeros((len(w), self.H, self.W), bool)
+        working = np.zeros_like(frozen_cells)
+        cells = self.agent_cells()[w]
+        rows = np.repeat(np.arange(len(w)), N)
+        on = (self.active[w] & self.frozen[w]).ravel()
+        frozen_cells[rows[on], cells[..., 0].ravel()[on], cells[..., 1].ravel()[on]] = True
+        on = (self.active[w] & ~self.frozen[w]).ravel()
+        working[rows[on], cells[..., 0].ravel()[on], cells[..., 1].ravel()[on]] = True
+        free = ~self.obstacle[inner] & ~frozen_cells
+        reach = _flood(free, working)
+        return (free & ~self.covered[inner] & ~reach).sum((1, 2))
+
     def recharge(self, worlds, factor: float = 2.0) -> None:
         """Give worlds a new battery of factor * h * w steps (partial reset, §6.4.2.2)."""
         w = np.asarray(worlds)

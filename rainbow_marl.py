@@ -1135,8 +1135,9 @@ def evaluate_policy(q: QNetwork, scenarios: list, frames: int, sensor: str = "fu
     as it has been stuck this episode, and every agent does once no more cells are left than
     working agents. `action_loss`: chance an agent misses its action and stays; `faulty_at`:
     the last agent freezes once this fraction of the points of interest is covered (§7.5.3.3).
-    Returns per-episode arrays: gridworld's metrics, `agents`, `truncated` and
-    `heuristic_steps` (agent-steps taken by the heuristic). A list given as `trajectories` is
+    Returns per-episode arrays: gridworld's metrics, `agents`, `truncated`,
+    `heuristic_steps` (agent-steps taken by the heuristic) and `walled_off` (the frozen agent left
+    uncovered cells no working agent can reach: no team completes such a map). A list given as `trajectories` is
     extended with one (T + 1, N, 2) int array per scenario: the (row, col) of each of its N agents
     at every step from the start, T that episode's own steps. The observation and the frame count are
     the network's own (q.network(), on its device); `frames` counts only for a network without that
@@ -1152,7 +1153,7 @@ def evaluate_policy(q: QNetwork, scenarios: list, frames: int, sensor: str = "fu
     hint = bool(spec.get("hint"))
     stack = Stacker(B * N, frames, *frame_shape(observation)[::-1], hint=hint)
     stack.push(observe(core, hint, dead_ends_first), np.ones(B * N, bool))
-    done, truncated, faulty = np.zeros(B, bool), np.zeros(B, bool), np.zeros(B, bool)
+    done, truncated, faulty, walled_off = (np.zeros(B, bool) for _ in range(4))
     since_new, times_stuck, owed = (np.zeros((B, N), np.int64) for _ in range(3))
     steps, used = np.zeros(B, np.int64), np.zeros(B, np.int64)  # each world's own, not the waits after its end
     history = [core.agent_cells()] * 6  # cells at t-5 .. t
@@ -1191,6 +1192,7 @@ def evaluate_policy(q: QNetwork, scenarios: list, frames: int, sensor: str = "fu
                 due = np.flatnonzero(~faulty & ~done & (core.new_cells >= faulty_at * core.n_poi_start))
                 core.freeze(due, core.active[due].sum(1) - 1)
                 faulty[due] = True
+                walled_off[due] = core.unreachable_poi(due) > 0
             stack.push(observe(core, hint, dead_ends_first), np.zeros(B * N, bool))
     q.reset_noise(True)
     if trajectories is not None:
@@ -1198,7 +1200,7 @@ def evaluate_policy(q: QNetwork, scenarios: list, frames: int, sensor: str = "fu
     m = core.metrics()
     return {**m, "steps": steps, "time_save": steps / np.maximum(m["n_poi_start"], 1),
             "rho": steps / np.maximum(core.n_free, 1), "agents": core.active.sum(1),
-            "truncated": truncated, "heuristic_steps": used}
+            "truncated": truncated, "heuristic_steps": used, "walled_off": walled_off}
 
 
 # ----------------------------------------------------------------------------- training

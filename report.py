@@ -308,7 +308,10 @@ def marl_results(model: str, quiet: bool = False, every: int = MARL_EVERY, agent
         if n in FAULTY_AGENTS:
             faulty = evaluate.run_marl(evaluate.Args(policy="marl", checkpoint=model, agents=n, faulty_agent_at=FAULTY_AT,
                                                      quiet=quiet), episodes)
-            result["faulty"][str(n)] = {"time_save": mean(faulty, "time_save"), "completion": mean(faulty, "completed")}
+            reachable = [r for r in faulty if not r["walled_off"]]
+            result["faulty"][str(n)] = {"time_save": mean(faulty, "time_save"), "completion": mean(faulty, "completed"),
+                                        "walled_off": len(faulty) - len(reachable),
+                                        "completion_reachable": mean(reachable, "completed") if reachable else None}
     return result
 
 
@@ -746,15 +749,24 @@ def marl_lines(mr: dict, rewards: dict) -> list[str]:
                 f"{100 * mr['agents'][n]['completion']:.0f}%", f"{mr['agents'][n]['heuristic_share']:.2f}"]
                for n in agents]), "",
         f"![rainbow_marl time-save factor]({FIGURES['rainbow_marl']})"]
-    if mr["faulty"]:
+    if mr["faulty"]:  # collected since the walled-off count exists: two more columns
+        walled_on = all("walled_off" in f for f in mr["faulty"].values())
+        walled_head = ["maps walled off by the frozen agent", "completed (the others)"] if walled_on else []
+
+        def walled(n, f):
+            if not walled_on:
+                return []
+            done = f["completion_reachable"]
+            return [f"{f['walled_off']} of {mr['agents'][n]['maps']}", "—" if done is None else f"{100 * done:.0f}%"]
+
         lines += [
             "", f"Faulty agent (§7.5.3.3, Fig. 7.12): the last agent freezes once "
             f"{100 * mr.get('faulty_at', FAULTY_AT):.0f}% of the points of interest are covered; "
             "mean $t_{sf}$ beside N and N - 1 working agents on the same maps:", "",
-            table(["N", "N working", "N, one faulty", "completed (faulty)", "N - 1 working"],
+            table(["N", "N working", "N, one faulty", "completed (faulty)", "N - 1 working"] + walled_head,
                   [[n, f"{mr['agents'][n]['time_save']:.3f}", f"{f['time_save']:.3f}", f"{100 * f['completion']:.0f}%",
                     f"{mr['agents'][str(int(n) - 1)]['time_save']:.3f}" if str(int(n) - 1) in mr["agents"] else "—"]
-                   for n, f in mr["faulty"].items()])]
+                   + walled(n, f) for n, f in mr["faulty"].items()])]
     if rewards:
         first = next(iter(rewards.values()))
         lines += [

@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from conftest import from_rows
 
 import evaluate
 import gridworld as gw
@@ -210,6 +211,23 @@ def test_faulty_agent_stays_put_and_the_others_finish():
     for a in (gw.NORTH, gw.SOUTH, gw.WEST, gw.EAST):
         core.step(np.array([[core.heuristic_actions(False)[0, 0], gw.WAIT, a]]))
         assert (core.agent_cells()[0, 2] == where).all()
+
+
+def test_a_frozen_agent_in_a_corridor_walls_off_the_cells_behind_it():
+    """Corridor 0 . 1 . . with agent 1 frozen: cells (0, 3) and (0, 4) lie behind it, (0, 1) does not; frozen in the
+    open (a 2-row map), it walls nothing off. A team never completes a walled-off map: evaluate_policy says which."""
+    corridor = from_rows(["0.1.."])
+    core = gw.GridWorldCore(gw.EnvConfig(load_state=True, load_random=False, number_agents=2), 2)
+    core.configure(scenarios=[corridor, from_rows(["0.1..", "....."])])
+    core.reset()
+    assert core.unreachable_poi().tolist() == [0, 0]
+    core.freeze([0, 1], 1)
+    assert core.unreachable_poi().tolist() == [2, 0] and core.unreachable_poi([0]).tolist() == [2]
+    torch.manual_seed(0)
+    q = rm.QNetwork(3, 41, 16, 0.5)
+    m = rm.evaluate_policy(q, [from_rows(["0...1...."]), from_rows(["0.1..", "....."])], 3, faulty_at=0.3)
+    assert m["walled_off"].tolist() == [True, False]
+    assert m["completed"].tolist() == [False, True]
 
 
 def test_missed_actions_slow_the_team_down():
