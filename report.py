@@ -62,6 +62,7 @@ CAMERA_RANGE = 3  # the sensor-based evaluation of the rainbow_cpp model (§6.5.
 SENSOR_RANGES, SENSOR_FAILURES = (1, 2, 3, 4, 5), (0.25, 0.5)  # Figs. 6.20-6.21 (K) and 6.22 (camera r = 3)
 SENSOR_POLICIES = ("rainbow", "frontier", "frontier-row-major")  # the agent beside the exploration baselines
 SENSOR_PER_SIZE, SENSOR_PER_BAND = 2, 1  # the sensors part: 52 cpp_eval maps, 16 structured_eval maps
+MOVINGAI_PLANNERS = ("greedy", "greedy-dead-ends", "wavefront", "rollout", "lkh")  # beside the agent, where collected
 MARL_EVERY, MARL_AGENTS = 10, range(1, 16)  # rainbow_marl: every 10th marl_eval layout, N = 1..15 (Fig. 7.11)
 FAULTY_AT, FAULTY_AGENTS = 0.5, (2, 5, 10)  # §7.5.3.3: the last agent freezes halfway
 REWARDS = ("greedy", "pretrained", "competitive", "cooperative", "size_invariant")  # results/marl_rewards/ runs
@@ -197,7 +198,8 @@ def _model_json(model: str) -> dict:
 
 def rainbow_results(per_size: int, p2p_maps: int, model: str, quiet: bool = False) -> dict:
     """A rainbow_cpp model on cpp_eval (full information with and without the heuristic fallback, camera),
-    p2p_eval and the MovingAI maps; the greedy planners per size beside it."""
+    p2p_eval, the MovingAI maps and the planners' structured_eval subset (per family); the greedy planners per size
+    beside it."""
     scenarios, sizes = classical_cpp.cpp_eval_subset(per_size)
     episodes = [(f"cpp_eval.npz[{z}x{z}]", classical_cpp.with_starts(s)) for s, z in zip(scenarios, sizes)]
 
@@ -214,7 +216,7 @@ def rainbow_results(per_size: int, p2p_maps: int, model: str, quiet: bool = Fals
                 for z, g in out.items()}
 
     result = {"per_size": per_size, "camera_range": CAMERA_RANGE, "model": _model_json(model)}
-    with _bar(7, "rainbow_cpp", quiet) as bar:
+    with _bar(8, "rainbow_cpp", quiet) as bar:
         for key, kw in (("full", {}), ("full_no_heuristic", {"heuristic": False}),
                         (f"camera_r{CAMERA_RANGE}", {"sensor": "camera", "sensor_range": CAMERA_RANGE})):
             result[key] = by_size(evaluate.run_rainbow(evaluate.Args(policy="rainbow", checkpoint=model, quiet=quiet, **kw),
@@ -237,7 +239,20 @@ def rainbow_results(per_size: int, p2p_maps: int, model: str, quiet: bool = Fals
                                         classical_cpp.external_episodes()):
             result["external"].setdefault(row["map"], []).append(row["overlap"])
         bar.update()
+        scenarios, families, _ = classical_cpp.structured_eval_subset(classical_cpp.STRUCTURED_PER_BAND)
+        rows = evaluate.run_rainbow(evaluate.Args(policy="rainbow", checkpoint=model, quiet=quiet),
+                                    [(f"structured_eval.npz[{f}]", s) for s, f in zip(scenarios, families)])
+        result["structured_eval"] = {f: family_stats([r for r, g in zip(rows, families) if g == f])
+                                     for f in dict.fromkeys(families)} | {"all": family_stats(rows)}
+        bar.update()
     return result
+
+
+def family_stats(rows: list[dict]) -> dict:
+    """Mean overlap, completion and heuristic share of some episodes."""
+    return dict(overlap=round(float(np.mean([r["overlap"] for r in rows])), 4),
+                completion=round(float(np.mean([r["completed"] for r in rows])), 4),
+                heuristic_share=round(float(np.mean([r["heuristic_steps"] / max(r["steps"], 1) for r in rows])), 4))
 
 
 def sensor_settings() -> dict[str, dict]:
@@ -263,12 +278,8 @@ def sensor_results(model: str, per_size: int = SENSOR_PER_SIZE, per_band: int = 
     structured = [(f"structured_eval.npz[{f}]", s) for s, f in zip(scenarios, families)]
 
     def summary(rows, groups):
-        def stats(g):
-            return dict(overlap=round(float(np.mean([r["overlap"] for r in g])), 4),
-                        completion=round(float(np.mean([r["completed"] for r in g])), 4),
-                        heuristic_share=round(float(np.mean([r["heuristic_steps"] / max(r["steps"], 1) for r in g])), 4))
-        out = stats(rows)
-        out["by"] = {k: stats([r for r, key in zip(rows, groups) if key == k]) for k in dict.fromkeys(groups)}
+        out = family_stats(rows)
+        out["by"] = {k: family_stats([r for r, key in zip(rows, groups) if key == k]) for k in dict.fromkeys(groups)}
         return out
 
     bands = [next(f"{a}-{b}" for a, b in classical_cpp.REPORT_BANDS if a <= z <= b) for z in sizes]
@@ -701,9 +712,19 @@ def rainbow_lines(rb: dict, c: dict) -> tuple[list[str], list[str], list[str]]:
                for z in sizes]), "",
         f"![rainbow overlap by size]({FIGURES['rainbow_cpp']})", "",
         f"MovingAI maps, mean overlap over the {'/'.join(map(str, starts))} reference starts:", "",
-        table(["map", "rainbow + heuristic", "greedy", "lkh"],
-              [[name, f"{np.mean(v):.3f}", f"{np.mean(ext[name]['greedy']):.3f}", f"{np.mean(ext[name]['lkh']):.3f}"]
+        table(["map", "rainbow + heuristic"] + [p for p in MOVINGAI_PLANNERS if p in next(iter(ext.values()))],
+              [[name, f"{np.mean(v):.3f}"] + [f"{np.mean(ext[name][p]):.3f}" for p in MOVINGAI_PLANNERS if p in ext[name]]
                for name, v in rb["external"].items()])]
+    st = c.get("structured_eval")
+    if "structured_eval" in rb and st is not None:
+        names = [p for p in ("greedy-dead-ends", "wavefront", "rollout", "lkh") if p in st["planners"]]
+        full += ["", f"`structured_eval`, the planners' {st['per_band']} maps per family and size band (the section "
+                 "below), mean overlap:", "",
+                 table(["family", "rainbow + heuristic", "completed", "heuristic share"] + names,
+                       [[f, f"**{rb['structured_eval'][f]['overlap']:.3f}**",
+                         f"{100 * rb['structured_eval'][f]['completion']:.0f}%",
+                         f"{rb['structured_eval'][f]['heuristic_share']:.2f}"]
+                        + [f"{st['planners'][p][f]['overlap']:.3f}" for p in names] for f in rb["structured_eval"]])]
     r = rb.get("camera_range", CAMERA_RANGE)
     camera = rb[f"camera_r{r}"]
     sensor = [f"Camera, range r = {r}, the same model with the heuristic fallback, `cpp_eval` as above:", "",
@@ -918,7 +939,7 @@ def render(results: dict) -> str:
     full_info = sensor_based = point_to_point = missing("rainbow_cpp")
     if results["rainbow_cpp"] is not None:
         with reading(paths["rainbow_cpp"]):
-            full_info, sensor_based, point_to_point = rainbow_lines(results["rainbow_cpp"], results["classical"])
+            full_info, sensor_based, point_to_point = rainbow_lines(results["rainbow_cpp"], classical)
     multi_agent = missing("rainbow_marl")
     if results["rainbow_marl"] is not None:
         with reading(paths["rainbow_marl"]):
