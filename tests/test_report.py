@@ -450,6 +450,8 @@ def test_all_on_tiny_settings_writes_into_out_only(tiny):
     rb = json.loads((out / "rainbow_cpp.json").read_text())
     assert sorted(rb["full"], key=int) == ["5", "6", "7"] and rb["p2p"]["maps"] == 2 and rb["model"]["stage"] == "tiny"
     assert all(v["completion"] == 1.0 for v in rb["full"].values())  # the heuristic finishes what the net cannot
+    assert list(rb["structured_eval"]) == [*gw.STRUCTURED_FAMILIES, "all"]
+    assert all(v["completion"] == 1.0 for v in rb["structured_eval"].values())
     sr = json.loads((out / "rainbow_sensors.json").read_text())
     keys = ["full", "camera_r1", "camera_r3", "lidar_r1", "lidar_r3", "camera_r3_failure25", "camera_r3_failure50"]
     assert list(sr["cpp_eval"]) == keys and list(sr["cpp_eval"]["full"]) == list(report.SENSOR_POLICIES)
