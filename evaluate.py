@@ -67,6 +67,7 @@ DEFAULT_CHECKPOINT = {"rainbow": "models/rainbow_cpp.pt", "marl": "models/rainbo
                       "tabular": "models/tabular_q.npz"}
 COLUMNS = ["map", "size", "n_free", "agents", "start", "steps", "revisits", "overlap", "time_save",
            "completed", "truncated", "heuristic_steps"]
+OPTIONAL_COLUMNS = ["walled_off"]  # marl --faulty-agent-at: the frozen agent left cells no working agent can reach
 BY_MAP_UP_TO = 12  # compare tables list the maps one by one up to this many maps, else only the overall means
 VIDEO_PIXELS = 384  # longer side of a video frame: 12 px a cell on 32x32 maps, ~1 s to encode 1,000 steps
 VIDEO_SECONDS = 30  # long episodes play faster than 10 steps/s so that a video lasts about this long
@@ -569,7 +570,7 @@ def _title(policy: str, name: str, row: dict) -> str:
 
 def _write_csv(path: str, rows: list[dict]) -> None:
     with open(path, "w", newline="") as f:
-        writer = csv.DictWriter(f, COLUMNS)
+        writer = csv.DictWriter(f, COLUMNS + [k for k in OPTIONAL_COLUMNS if rows and k in rows[0]])
         writer.writeheader()
         writer.writerows(rows)
 
