@@ -1411,19 +1411,18 @@ class GridWorldCore:
         that no working agent can reach, frozen agents' cells being blocked (§7.5.3.3: a faulty agent in a corridor
         walls off what lies behind it, so no team can complete the map)."""
         w = self._world_indices(worlds)
-        c, N = self.c, self.N
+        c = self.c
         inner = (w, slice(c, c + self.H), slice(c, c + self.W))
-        frozen_cells = np.zeros((len(w), self.H, self.W), bool)
-        working = np.zeros_like(frozen_cells)
-        cells = self.agent_cells()[w]
-        rows = np.repeat(np.arange(len(w)), N)
-        on = (self.active[w] & self.frozen[w]).ravel()
-        frozen_cells[rows[on], cells[..., 0].ravel()[on], cells[..., 1].ravel()[on]] = True
-        on = (self.active[w] & ~self.frozen[w]).ravel()
-        working[rows[on], cells[..., 0].ravel()[on], cells[..., 1].ravel()[on]] = True
-        free = ~self.obstacle[inner] & ~frozen_cells
-        reach = _flood(free, working)
+        free = ~self.obstacle[inner] & ~self._agent_cells_mask(w, (self.active & self.frozen)[w])
+        reach = _flood(free, self._agent_cells_mask(w, (self.active & ~self.frozen)[w]))
         return (free & ~self.covered[inner] & ~reach).sum((1, 2))
+
+    def _agent_cells_mask(self, w: np.ndarray, which: np.ndarray) -> np.ndarray:
+        """(len(w), H, W): the map cells of the agents `which` (len(w), N) of worlds w."""
+        mask = np.zeros((len(w), self.H, self.W), bool)
+        cells = self.agent_cells()[w][which]
+        mask[np.nonzero(which)[0], cells[:, 0], cells[:, 1]] = True
+        return mask
 
     def recharge(self, worlds, factor: float = 2.0) -> None:
         """Give worlds a new battery of factor * h * w steps (partial reset, §6.4.2.2)."""
@@ -1631,6 +1630,8 @@ class GridWorldCore:
         inner = (slice(None), slice(c, c + H), slice(c, c + W))
         seen = self.seen[inner]
         passable = seen & ~self.obstacle[inner]
+        if self.any_frozen:  # a frozen agent never moves off its cell: a path through it would wait forever (§7.5.3.3)
+            passable &= ~self._agent_cells_mask(np.arange(B), self.active & self.frozen)
         passable, targets = _pack(np.stack([passable, passable & ~self.covered[inner]]))
         n_targets = np.bitwise_count(targets).sum((1, 2), dtype=np.int64)
         if (n_targets == 0).any():  # frontier cells, other than those agents stand on

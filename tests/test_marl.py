@@ -230,6 +230,21 @@ def test_a_frozen_agent_in_a_corridor_walls_off_the_cells_behind_it():
     assert m["completed"].tolist() == [False, True]
 
 
+def test_the_heuristic_routes_around_a_frozen_agent():
+    """Agent 0 at (0, 0), agent 1 at (0, 1), the bottom row covered: the nearest point of interest (0, 2) lies 2 steps
+    east through agent 1's cell, 4 steps round by the bottom row. A moving agent 1 is no obstacle (EAST); a frozen one
+    never moves off its cell, so the heuristic goes round (SOUTH) instead of waiting behind it for ever."""
+    core = gw.GridWorldCore(gw.EnvConfig(load_state=True, load_random=False, number_agents=2), 1)
+    core.configure(scenarios=[from_rows(["01..", "xxxx"])])
+    core.reset()
+    assert core.heuristic_actions(False, True)[0, 0] == gw.EAST
+    core.freeze([0], 1)
+    assert core.heuristic_actions(False, True)[0].tolist() == [gw.SOUTH, gw.WAIT]
+    for _ in range(4):
+        core.step(core.heuristic_actions(False, True))
+    assert core.covered[0, core.c, core.c + 2] and core.unreachable_poi().tolist() == [0]
+
+
 def test_missed_actions_slow_the_team_down():
     torch.manual_seed(0)
     q = rm.QNetwork(3, 41, 16, 0.5)
