@@ -116,6 +116,7 @@ def test_provenance_and_model_keys_are_read_back():
     model["parent"] = {"path": "models/rainbow_cpp.pt", "sha256": "0123456789abcdef" * 4, "global_step": 42000,
                        "stage": "n2", "provenance": {"git_commit": "feedfacecafe", "git_dirty": False},
                        "parent": {"path": "runs/first/rainbow_cpp.pt", "global_step": 7}}
+    model["init_from_note"] = "a note of an older trainer"
     text = report.render(results)
     row = next(r for r in _table_rows(text) if r.startswith("| `classical_cpp.json`"))
     assert row == ("| `classical_cpp.json` | 2030-01-02T03:04:05+00:00 | abcdef0 (with uncommitted changes) | "
@@ -123,7 +124,7 @@ def test_provenance_and_model_keys_are_read_back():
     assert ("Trained on machine: Trainer CPU (3 cores); torch threads: 2; git commit: 1234567; "
             "date: 2029-05-06T00:00:00+00:00. Parent: `models/rainbow_cpp.pt` (sha256 0123456789ab, 42,000 steps, "
             "last stage n2, git commit feedfac) ← `runs/first/rainbow_cpp.pt` (7 steps, git commit not recorded). "
-            "Training: ") in text  # then the trainer's note, from the same JSON
+            "Training: a note of an older trainer.") in text  # then the trainer's note, from the same JSON
     tabular = results["tabular"]["model"]
     tabular.update(git_commit="89abcdef01", git_dirty=False, cpu="Table CPU", cores=5, date="2028-01-01")
     assert ("Trained on machine: Table CPU (5 cores); git commit: 89abcde; date: 2028-01-01. Greedy on"
