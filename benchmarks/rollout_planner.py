@@ -28,6 +28,8 @@ import numpy as np  # noqa: E402
 import tyro  # noqa: E402
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+from cpu import pin  # noqa: E402
+
 import classical_cpp as cc  # noqa: E402
 
 
@@ -145,12 +147,7 @@ def main(args: Args) -> dict:
         raise SystemExit(f"error: unknown --base {args.base!r}; choose from {sorted(cc.ROLLOUT_BASES)}")
     if args.per_size < 0:
         raise SystemExit(f"error: --per-size must be >= 0, got {args.per_size}")
-    allowed = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else []
-    if allowed:
-        cpu = allowed[0] if args.cpu < 0 else args.cpu
-        if cpu not in allowed:
-            raise SystemExit(f"error: --cpu {cpu} is not one of this process's CPUs {allowed}")
-        os.sched_setaffinity(0, {cpu})
+    pin(args.cpu)
     out: dict = {"base": args.base}
     t0 = time.perf_counter()
     if args.per_size:

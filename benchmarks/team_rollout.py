@@ -29,6 +29,8 @@ from dataclasses import dataclass  # noqa: E402
 import tyro  # noqa: E402
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+from cpu import pin  # noqa: E402
+
 import classical_cpp as cc  # noqa: E402
 
 
@@ -47,12 +49,7 @@ class Args:
 
 
 def main(args: Args) -> dict:
-    allowed = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else []
-    if allowed:
-        cpu = allowed[0] if args.cpu < 0 else args.cpu
-        if cpu not in allowed:
-            raise SystemExit(f"error: --cpu {cpu} is not one of this process's CPUs {allowed}")
-        os.sched_setaffinity(0, {cpu})
+    pin(args.cpu)
     t0 = time.perf_counter()
     try:
         out = cc.compare_team_rollout(args.agents, args.marl_every, args.structured_every, args.structured_agents)
