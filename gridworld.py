@@ -898,6 +898,157 @@ def _maze(rng, hw, H, W, p: FamilyParams) -> np.ndarray:
 
 
 # ----------------------------------------------------------------------------- the core
+def _path_tables(free: np.ndarray, Wp: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Shortest paths between the free cells of one flat bordered map (row width Wp), for the rollouts' walkers:
+    the table row of each cell (-1 where not free); the distance from each free cell to every cell (int16, 32767
+    where unreachable); and the heuristic's first cell from each free cell toward every cell, where the walk back
+    from the goal, each step to the first closer cell in N, S, W, E order, ends."""
+    cells = np.flatnonzero(free)
+    n, P, far = len(cells), free.size, np.iinfo(np.int16).max
+    row = np.full(P, -1, np.int64)
+    row[cells] = np.arange(n)
+    dist = np.full((n, P), far, np.int16)
+    front = np.zeros((n, P), bool)
+    front[np.arange(n), cells] = True
+    visited, i = front.copy(), 0
+    while front.any():  # breadth-first from every free cell at once
+        dist[front] = i
+        grown = front.copy()
+        grown[:, Wp:] |= front[:, :-Wp]
+        grown[:, :-Wp] |= front[:, Wp:]
+        grown[:, 1:] |= front[:, :-1]
+        grown[:, :-1] |= front[:, 1:]
+        front = grown & free & ~visited
+        visited |= front
+        i += 1
+    ahead = np.full((4, n, P), far, np.int16)  # the distance of each cell's N, S, W, E neighbour
+    ahead[0, :, Wp:], ahead[1, :, :-Wp], ahead[2, :, 1:], ahead[3, :, :-1] = (
+        dist[:, :-Wp], dist[:, Wp:], dist[:, :-1], dist[:, 1:])
+    back = (ahead == dist - 1).argmax(0)
+    here = np.arange(P)
+    first = np.where((dist >= 2) & (dist < far), here + np.array([-Wp, Wp, -1, 1])[back], here).astype(np.int32)
+    for _ in range(max(1, int(np.ceil(np.log2(max(i, 2)))))):  # pointer doubling: each pass halves the walk left
+        first = np.take_along_axis(first, first, 1)
+    return row, dist, first.astype(np.int16)
+
+
+class _Walkers:
+    """Single agents following the deterministic navigation heuristic (GridWorldCore.heuristic_actions with
+    random_ties=False, one agent, full view) on bare maps, in lockstep: the rollouts' tries. A map is its free
+    cells and points of interest, flat with a border of obstacle; several walkers may share a map (`map_of`).
+    Only a walker with no point of interest next to it looks further: in its map's _path_tables where they are
+    given (a few array operations), else by a breadth-first search; the others pick among their neighbours."""
+
+    def __init__(self, free: np.ndarray, poi: np.ndarray, cells: np.ndarray, dead_ends_first: bool,
+                 tables: list | None = None):
+        n, H, W = free.shape
+        self.Wp, self.P, self.dead_ends_first = W + 2, (H + 2) * (W + 2), dead_ends_first
+        pad = np.zeros((2, n, H + 3, W + 2), bool)  # a spare row: a border cell's neighbours are in the array
+        pad[:, :, 1:H + 1, 1:-1] = free, poi
+        self.free, self.poi = pad[0].reshape(n, -1), pad[1].reshape(n, -1)
+        self.map_of = np.arange(n)
+        self.pos = (cells[:, 0] + 1) * self.Wp + cells[:, 1] + 1
+        self.remaining = self.poi.sum(1)
+        self.delta = np.array([-self.Wp, self.Wp, -1, 1])  # N, S, W, E
+        self.tables = tables or [None] * n  # per map: _path_tables of its free cells, or None (search)
+
+    def take(self, rows: np.ndarray) -> _Walkers:
+        """The walkers `rows` (repeats allowed), each with its own copy of its points of interest."""
+        out = object.__new__(_Walkers)
+        out.__dict__.update(self.__dict__)
+        out.map_of, out.pos, out.remaining = self.map_of[rows], self.pos[rows], self.remaining[rows]
+        out.poi = self.poi[rows]
+        return out
+
+    def _key(self, degree: np.ndarray, cells: np.ndarray) -> np.ndarray:
+        """The heuristic's order among equally near targets: fewer target neighbours first (dead-ends-first),
+        then row-major (the border keeps flat order row-major)."""
+        return degree * self.P + cells if self.dead_ends_first else cells
+
+    def moves(self) -> np.ndarray:
+        """The heuristic's move of every walker (WAIT where no point of interest is reachable)."""
+        rows = np.arange(len(self.pos))
+        near = self.pos[:, None] + self.delta
+        target = self.poi[rows[:, None], near]
+        degree = self.poi[rows[:, None, None], near[..., None] + self.delta].sum(-1) if self.dead_ends_first else 0
+        key = np.where(target, self._key(degree, near), np.iinfo(np.int64).max)
+        move = np.where(target.any(1), key.argmin(1), WAIT)
+        far = np.flatnonzero(~target.any(1))
+        if len(far):
+            tabled = np.array([self.tables[m] is not None for m in self.map_of[far]], bool)
+            if tabled.any():
+                move[far[tabled]] = self._look_up(far[tabled])
+            if not tabled.all():
+                move[far[~tabled]] = self._search(far[~tabled])
+        return move
+
+    def _look_up(self, far: np.ndarray) -> np.ndarray:
+        """_search's moves from the walkers' _path_tables: the nearest targets by distance, ties by _key, and the
+        tabled first cell toward the chosen one."""
+        Wp = self.Wp
+        rows = [(self.tables[m], self.tables[m][0][p]) for m, p in zip(self.map_of[far], self.pos[far])]
+        dist = np.stack([t[1][r] for t, r in rows])
+        poi = self.poi[far]
+        dist = np.where(poi, dist, np.iinfo(np.int16).max)
+        nearest = dist == dist.min(1, keepdims=True)
+        degree = np.zeros(poi.shape, np.int64)
+        if self.dead_ends_first:
+            degree[:, Wp:] += poi[:, :-Wp]
+            degree[:, :-Wp] += poi[:, Wp:]
+            degree[:, 1:] += poi[:, :-1]
+            degree[:, :-1] += poi[:, 1:]
+        goal = np.where(nearest & poi, self._key(degree, np.arange(poi.shape[1])), np.iinfo(np.int64).max).argmin(1)
+        first = np.array([t[2][r, g] for (t, r), g in zip(rows, goal)], np.int64)
+        move = (first[:, None] == self.pos[far, None] + self.delta).argmax(1)
+        return np.where(poi.any(1) & (dist.min(1) < np.iinfo(np.int16).max), move, WAIT)
+
+    def _search(self, far: np.ndarray) -> np.ndarray:
+        """Breadth-first search from walkers with no neighbouring target to their nearest one (ties by _key), and
+        the first move of the walk back from it (each step to the first closer cell in N, S, W, E order)."""
+        k, Wp, rows = len(far), self.Wp, np.arange(len(far))
+        free, poi = self.free[self.map_of[far]], self.poi[far]
+        front = np.zeros(poi.shape, bool)
+        front[rows, self.pos[far]] = True
+        visited, layers = front.copy(), [front]
+        goal, dist = np.zeros(k, np.int64), np.zeros(k, np.int64)
+        while True:
+            grown = front.copy()
+            grown[:, Wp:] |= front[:, :-Wp]
+            grown[:, :-Wp] |= front[:, Wp:]
+            grown[:, 1:] |= front[:, :-1]
+            grown[:, :-1] |= front[:, 1:]
+            front = grown & free & ~visited
+            front[dist > 0] = False  # walkers that found their target stop
+            if not front.any():
+                break
+            visited |= front
+            layers.append(front)
+            hit = front & poi
+            found = np.flatnonzero(hit.any(1))
+            if len(found):
+                p = poi[found]
+                degree = np.zeros(p.shape, np.int64)
+                degree[:, Wp:] += p[:, :-Wp]
+                degree[:, :-Wp] += p[:, Wp:]
+                degree[:, 1:] += p[:, :-1]
+                degree[:, :-1] += p[:, 1:]
+                key = np.where(hit[found], self._key(degree, np.arange(p.shape[1])), np.iinfo(np.int64).max)
+                goal[found], dist[found] = key.argmin(1), len(layers) - 1
+        for i in range(int(dist.max()) - 1, 0, -1):  # walk back from the goal to distance 1
+            near = goal[:, None] + self.delta
+            pick = layers[i][rows[:, None], near].argmax(1)
+            goal = np.where(dist > i, near[rows, pick], goal)
+        first = (goal[:, None] == self.pos[far, None] + self.delta).argmax(1)
+        return np.where(dist > 0, first, WAIT)
+
+    def step(self, move: np.ndarray) -> None:
+        """Every walker moves (into a free cell, never WAIT) and covers the cell it enters."""
+        rows = np.arange(len(self.pos))
+        self.pos = self.pos + self.delta[move]
+        self.remaining = self.remaining - self.poi[rows, self.pos]
+        self.poi[rows, self.pos] = False
+
+
 class GridWorldCore:
     """B independent worlds with up to N agents each, as numpy arrays, stepped together.
 
@@ -906,9 +1057,13 @@ class GridWorldCore:
     observation window is a plain strided slice. Agent positions are flat indices into the
     (B, H + 2c, W + 2c) arrays; `agent_cells()` gives [row, col] map coordinates."""
 
+    PATH_TABLE_BYTES = 512 * 2**20  # the rollouts' shortest-path tables kept between calls (_path_tables_of)
+    PATH_TABLE_CELLS = 2500  # larger maps search instead (a table is 4 bytes per pair of cells)
+
     def __init__(self, config: EnvConfig | dict | None = None, num_worlds: int = 1, seed=None):
         self.B = num_worlds
         self.rng = np.random.default_rng(seed)
+        self.path_cache, self.path_calls = {}, 0
         self.H = self.W = 0
         self.config = EnvConfig()
         self.configure(config if config is not None else EnvConfig())
@@ -1018,10 +1173,11 @@ class GridWorldCore:
             self.canvas32, (B * Ph * Pw - (V - 1) * (Pw + 1), V, V), (s, Pw * s, s), writeable=False)
 
     def __getstate__(self) -> dict:
-        return {k: v for k, v in self.__dict__.items() if k not in ("canvas32", "views", "windows")}
+        return {k: v for k, v in self.__dict__.items() if k not in ("canvas32", "views", "windows", "path_cache")}
 
     def __setstate__(self, state: dict) -> None:
         self.__dict__.update(state)  # pickle copies views apart from their arrays: bind them anew
+        self.path_cache = {}
         self._bind_views()
 
     def _flat(self, b, y, x) -> np.ndarray:
@@ -1720,17 +1876,13 @@ class GridWorldCore:
         on the full state (map, coverage), also in sensor tasks: a privileged teacher, not a policy of the
         observation. With view="known" it plans on the agent's known map (a policy of what it has seen): unknown
         cells are free points of interest, except those walled in by known obstacles (unreachable, so obstacles).
-        The imagined worlds are fully seen and sense nothing: a sensor there would reveal the true map.
 
-        Each world is copied (copy_worlds) into 4 candidate worlds of a scratch core, one per move; a blocked
-        move is not a candidate, and a world with a single candidate takes it at once. The candidates then
-        run the heuristic in lockstep, one batched call per step for all of them, so the first to finish has
-        the fewest steps and decides its world: any candidate still running then has steps + remaining >= its
-        cost (at least one step a cell) and stops; stopped candidates are frozen (skipped) and the scratch core
-        is rebuilt without them once they are half of it.
-        After max_steps steps (default 4 * H * W: a heuristic that cannot finish) the heuristic's own move is
-        kept. A finished world, or one whose agent is absent or frozen, gets the heuristic's move (WAIT).
-        This core is not changed (nor its random stream)."""
+        The tries are walkers of _Walkers (the heuristic's moves on bare maps: no battery, rewards or sensing),
+        one per legal move, run in lockstep, so the first to finish has the fewest steps and decides its world;
+        a blocked move is not a try, and a world with a single try takes it at once. A try that can reach no
+        point of interest never finishes. After max_steps steps (default 4 * H * W) the heuristic's own move is
+        kept. A finished world, or one whose agent is absent or frozen, gets the heuristic's move (WAIT). This
+        core is not changed (nor its random stream)."""
         if self.N != 1:
             raise ValueError(f"rollout_actions plans for one agent, the worlds have {self.N}")
         if view not in ("full", "known"):
@@ -1739,47 +1891,72 @@ class GridWorldCore:
         n, K = len(w), 4
         if n == 0:
             return np.zeros(0, np.int64)
-        scratch = self._scratch(n * K)
-        scratch.copy_worlds(np.repeat(w, K), np.arange(n * K), source=self)
-        c = self.c
+        c, H, W = self.c, self.H, self.W
+        inner = (w, slice(c, c + H), slice(c, c + W))
+        free, covered = ~self.obstacle[inner], self.covered[inner]
         if view == "known":  # the optimistic known map: what the agent can reach and has not seen is to cover
-            inner = (slice(None), slice(c, c + self.H), slice(c, c + self.W))
-            unknown = ~scratch.seen[inner]
-            reach = _flood(~scratch.obstacle[inner] | unknown, scratch.occupied[inner])
-            scratch.obstacle[inner] = ~reach
-            scratch.covered[inner] &= ~unknown
-            scratch.remaining[:] = (reach & ~scratch.covered[inner]).sum((1, 2))
-        scratch.seen[:, c:c + self.H, c:c + self.W] = True  # the full state (outside the map is obstacle)
-        base = scratch.heuristic_actions(False, dead_ends_first)[::K, 0]  # its own move, on the state planned on
-        out = base.copy()
+            unknown = ~self.seen[inner]
+            free = _flood(free | unknown, self.occupied[inner])
+            covered = covered & ~unknown
+        agent = self.active[w, 0] & ~self.frozen[w, 0]
+        cells = np.where(agent[:, None], self.agent_cells()[w, 0], 0)  # an absent agent is parked off the map
+        walkers = _Walkers(free, free & ~covered, cells, dead_ends_first)
+        if view == "full":  # the map of an episode does not change: its tables serve every later call
+            walkers.tables = self._path_tables_of(walkers.free, walkers.Wp)
+        base = walkers.moves()  # the heuristic's own move on the state planned on
+        out = np.where(agent, base, WAIT)
+        live = (self.remaining[w] > 0) & agent & (walkers.remaining > 0)
         moves = np.arange(K)
-        live = (self.remaining[w] > 0) & self.active[w, 0] & ~self.frozen[w, 0]
-        tgt = scratch.pos[::K, 0][:, None] + scratch.delta[:K]
-        run = ~scratch.views["obstacle"][tgt] & live[:, None]  # (n, K) candidates still running
+        run = walkers.free[np.arange(n)[:, None], walkers.pos[:, None] + walkers.delta] & live[:, None]
         single = run.sum(1) == 1
         out[single] = run[single].argmax(1)
         run[single] = False
         priority = np.where(moves == base[:, None], -1, moves)  # ties: the heuristic's move, then N, S, W, E
-        scratch.frozen[:, 0] = ~run.ravel()
-        scratch.any_frozen = True
-        scratch.step(np.tile(moves, n)[:, None])
-        owner = np.arange(n * K)  # the (world, move) of each scratch world, flat
-        limit = 4 * self.H * self.W if max_steps is None else max_steps
-        for t in range(1, limit + 1):  # t: the steps each running candidate has taken
-            remaining = np.ones(n * K, np.int64)
-            remaining[owner] = scratch.remaining
-            done = run & (remaining.reshape(n, K) == 0)
+        owner = np.flatnonzero(run.ravel())  # the (world, move) of each walker, flat
+        walkers = walkers.take(owner // K)
+        walkers.step(owner % K)
+        limit = 4 * H * W if max_steps is None else max_steps
+        for t in range(1, limit + 1):  # t: the steps each running try has taken
+            done = np.zeros(n * K, bool)
+            done[owner] = walkers.remaining == 0
+            done = done.reshape(n, K)
             decided = done.any(1)
             if decided.any():
                 out[decided] = np.where(done[decided], priority[decided], K).argmin(1)
                 run[decided] = False
-            if not run.any() or t == limit:
+            if t == limit:
                 break
-            alive = run.ravel()[owner]
-            scratch, owner, alive = self._compacted(scratch, owner, alive)
-            scratch.frozen[:, 0] = ~alive
-            scratch.any_frozen = True
-            scratch.step(scratch.heuristic_actions(False, dead_ends_first))
+            move = walkers.moves()
+            keep = run.ravel()[owner] & (move < WAIT)  # a walker with no reachable target never finishes
+            if not keep.all():
+                owner, walkers, move = owner[keep], walkers.take(np.flatnonzero(keep)), move[keep]
+            if len(owner) == 0:
+                break
+            walkers.step(move)
+        return out
+
+    def _path_tables_of(self, free: np.ndarray, Wp: int) -> list:
+        """_path_tables of each flat bordered map (n, P), kept between calls by map. A map over PATH_TABLE_CELLS
+        free cells, or one whose tables would pass PATH_TABLE_BYTES after dropping those the last call did not
+        use, gets None (its walkers search)."""
+        self.path_calls += 1
+        out = []
+        for m in free:
+            key = (Wp, m.tobytes())
+            entry = self.path_cache.get(key)
+            n = int(m.sum())
+            if entry is None and n <= self.PATH_TABLE_CELLS:
+                size = 4 * n * m.size
+                used = sum(e[2] for e in self.path_cache.values())
+                for old in [k for k, e in self.path_cache.items() if e[1] < self.path_calls - 1]:
+                    if used + size <= self.PATH_TABLE_BYTES:
+                        break
+                    used -= self.path_cache.pop(old)[2]
+                if used + size <= self.PATH_TABLE_BYTES:
+                    entry = self.path_cache[key] = [_path_tables(m, Wp), 0, size]
+            if entry is not None:
+                entry[1] = self.path_calls
+            out.append(None if entry is None else entry[0])
         return out
 
     def _scratch(self, m: int) -> GridWorldCore:
