@@ -194,16 +194,20 @@ class Args:
     better teacher and fallback; --no-heuristic-dead-ends for the dissertation's heuristic"""
     teacher: str = "heuristic"
     """the expert that acts under §6.4.2.4's imitation conditions (demonstrations included) and labels replayed
-    states for --margin-loss: heuristic (the navigation heuristic, as set by the two flags above) or rollout (the
+    states for --margin-loss: heuristic (the navigation heuristic, as set by the two flags above), rollout (the
     one-step rollout of the deterministic heuristic, GridWorldCore.rollout_actions: about half its overlap, planned
-    on the full state also in sensor stages, a privileged teacher; milliseconds a label, see docs/rainbow_cpp.md).
-    The evaluation's stuck fallback stays the heuristic"""
+    on the full state also in sensor stages, a privileged teacher; milliseconds a label, see docs/rainbow_cpp.md) or
+    policy-rollout (the one-step rollout of the greedy network itself with the heuristic fallback, a copy refreshed
+    every --policy-refresh steps: expert iteration; tens of milliseconds a label). The evaluation's stuck fallback
+    stays the heuristic"""
     teacher_view: str = "full"
     """--teacher rollout in sensor stages: plan on the true map (full: a privileged teacher, "learning by cheating",
     while the student sees only its sensor) or on the agent's known map (known: unknown cells free points of interest,
     evaluate.py's frontier-rollout); the same in full-information stages. The heuristic always acts on the known map"""
+    policy_refresh: int = 10_000
+    """--teacher policy-rollout: environment steps between copies of the online network into the rollout's policy"""
     label_fraction: float = 1.0
-    """--teacher rollout: the chance that a world the agent acts in gets its margin label from the rollout (the
+    """--teacher rollout or policy-rollout: the chance that a world the agent acts in gets its margin label from the rollout (the
     others get the heuristic's), to bound the cost; worlds the teacher acts in always use the rollout"""
     eval_every: int = 25_000
     """environment steps between evaluations on held-out cpp_eval maps (0: none)"""
@@ -1073,7 +1077,7 @@ def progress_bar(total: int, initial: int, quiet: bool) -> tqdm:
     return tqdm(total=total, initial=initial, unit="step", unit_scale=True, dynamic_ncols=True,
                 disable=quiet or not sys.stdout.isatty())
 # ============================================================================= end of the shared code
-TEACHERS = ("heuristic", "rollout")  # --teacher
+TEACHERS = ("heuristic", "rollout", "policy-rollout")  # --teacher
 TEACHER_VIEWS = ("full", "known")  # --teacher-view
 
 
@@ -1086,19 +1090,126 @@ def check_teacher(args: Args) -> None:
     if args.teacher_view not in TEACHER_VIEWS:
         raise ValueError(f"--teacher-view must be one of {', '.join(TEACHER_VIEWS)}, got {args.teacher_view!r}")
     if args.teacher_view != "full" and args.teacher != "rollout":
-        raise ValueError(f"--teacher-view {args.teacher_view} needs --teacher rollout (the heuristic acts on the known map)")
+        raise ValueError(f"--teacher-view {args.teacher_view} needs --teacher rollout (the heuristic acts on the known "
+                         "map, the policy on its observation)")
+    if args.policy_refresh < 1:
+        raise ValueError(f"--policy-refresh must be at least 1, got {args.policy_refresh}")
 
 
 def rollout_labels(core: gridworld.GridWorldCore, label: np.ndarray, teach: np.ndarray, args: Args,
-                   rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    """--teacher rollout: the heuristic's labels with the rollout's in the worlds the teacher acts in and, with
-    a margin loss, in a label_fraction of the others, one batched rollout_actions call; returns the labels and the
-    worlds the rollout labelled."""
+                   rng: np.random.Generator, policy: nn.Module | None = None,
+                   stack: Stacker | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """--teacher rollout or policy-rollout: the heuristic's labels with the rollout's in the worlds the teacher acts
+    in and, with a margin loss, in a label_fraction of the others, one batched call; returns the labels and the
+    worlds the rollout labelled. policy-rollout needs the rollout's `policy` and the worlds' frame `stack`."""
     need = teach | (labelled(args) & (rng.random(len(teach)) < args.label_fraction))
     w = np.flatnonzero(need)
     label = label.copy()
-    label[w] = core.rollout_actions(w, args.heuristic_dead_ends, view=args.teacher_view)
+    if args.teacher == "policy-rollout":
+        label[w] = policy_rollout_actions(core, w, policy, stack, args.heuristic_dead_ends)
+    else:
+        label[w] = core.rollout_actions(w, args.heuristic_dead_ends, view=args.teacher_view)
     return label, w
+
+
+class Fallback:
+    """§6.5.2.1's heuristic fallback for single-agent worlds: once an agent is stuck (§6.4.2.4's conditions 3-4) the
+    deterministic heuristic keeps control for as many new cells as the agent has been stuck in its episode."""
+
+    def __init__(self, core: gridworld.GridWorldCore, random_ties: bool = False, dead_ends_first: bool = True):
+        n = core.B
+        self.since_new, self.times_stuck = np.zeros(n, np.int64), np.zeros(n, np.int64)
+        self.owed = np.zeros(n, np.int64)  # new cells left to the heuristic
+        self.history = [core.agent_cells()[:, 0]] * 6  # cells at t-5 .. t
+        self.random_ties, self.dead_ends_first = random_ties, dead_ends_first
+
+    def act(self, core: gridworld.GridWorldCore, action: np.ndarray, done: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The actions with the heuristic's where it has control, and where it has."""
+        moved = np.abs(core.agent_cells()[:, 0] - self.history[0]).sum(1)
+        now_stuck = stuck(self.since_new, moved, core.hw.max(1)) & ~done & (self.owed == 0)
+        self.times_stuck += now_stuck
+        self.owed = np.where(now_stuck, self.times_stuck, self.owed)
+        fallback = (self.owed > 0) & ~done
+        if fallback.any():
+            action = np.where(fallback, core.heuristic_actions(self.random_ties, self.dead_ends_first)[:, 0], action)
+        return action, fallback
+
+    def stepped(self, core: gridworld.GridWorldCore, new: np.ndarray) -> None:
+        """After a step: whether each agent found a new cell."""
+        self.since_new = np.where(new, 0, self.since_new + 1)
+        self.owed = np.maximum(self.owed - new, 0)
+        self.history = self.history[1:] + [core.agent_cells()[:, 0]]
+
+    def take(self, rows: np.ndarray) -> None:
+        """Keep the worlds `rows` only (the core was rebuilt with them)."""
+        self.since_new, self.times_stuck, self.owed = self.since_new[rows], self.times_stuck[rows], self.owed[rows]
+        self.history = [h[rows] for h in self.history]
+
+
+def policy_rollout_actions(core: gridworld.GridWorldCore, worlds: np.ndarray, policy: nn.Module, stack: Stacker,
+                           dead_ends_first: bool = True) -> np.ndarray:
+    """--teacher policy-rollout: the one-step rollout (Bertsekas) whose base is the greedy `policy` (noise off) with the
+    heuristic fallback, for the given worlds (indices): each legal move is tried in a copy of the world (copy_worlds),
+    the copies go on with the policy in lockstep from the world's frame stack, and the move whose copy covers every
+    point of interest first wins (the policy's own move on ties, then N, S, W, E). Its labels are never worse than the
+    policy with its fallback (cost improvement), so labelling the agent's states with them is a policy-improvement
+    step. A copy not done within 4 h w steps loses; where none is done the policy's move stands. The copies act on
+    their own observations (sensors included); the simulator finishes them on the true map."""
+    n, K, device = len(worlds), 4, device_of(policy)
+    if n == 0:
+        return np.zeros(0, np.int64)
+    maps, extras = stack.get()
+    with torch.no_grad():
+        base = policy(*to_torch(maps[worlds], extras[worlds], device)).argmax(1).cpu().numpy()
+    out = base.copy()
+    moves = np.arange(K)
+    live = core.remaining[worlds] > 0
+    run = ~core.views["obstacle"][core.pos[worlds, 0][:, None] + core.delta[:K]] & live[:, None]
+    single = run.sum(1) == 1
+    out[single] = run[single].argmax(1)
+    run[single] = False
+    priority = np.where(moves == base[:, None], -1, moves)  # ties: the policy's move, then N, S, W, E
+    owner = np.flatnonzero(run.ravel())  # the (world, move) of each copy, flat
+    if len(owner) == 0:
+        return out
+    config = core.config.replace(size=max(core.H, core.W))
+    copies = gridworld.GridWorldCore(config, len(owner), seed=0)
+    copies.copy_worlds(worlds[owner // K], np.arange(len(owner)), source=core)
+    sub = Stacker(len(owner), stack.maps.shape[1], stack.maps.shape[-1], stack.maps.shape[2], stack.hint is not None)
+    sub.maps, sub.extra, sub.battery = (a[worlds[owner // K]].copy() for a in (stack.maps, stack.extra, stack.battery))
+    fallback = Fallback(copies, False, dead_ends_first)
+    ev = copies.step((owner % K)[:, None])
+    fallback.stepped(copies, ev["new"][:, 0])
+    hint = stack.hint is not None
+    sub.push(observe(copies, hint, dead_ends_first), np.zeros(len(owner), bool))
+    limit = 4 * core.H * core.W
+    for _ in range(limit):
+        done = np.zeros(n * K, bool)
+        done[owner] = copies.remaining == 0
+        done = done.reshape(n, K)
+        decided = done.any(1)
+        if decided.any():
+            out[decided] = np.where(done[decided], priority[decided], K).argmin(1)
+            run[decided] = False
+        keep = run.ravel()[owner] & ~(copies.remaining == 0)
+        if not keep.any():
+            break
+        if 2 * keep.sum() <= len(owner):  # rebuild the copies without the stopped ones
+            rows = np.flatnonzero(keep)
+            smaller = gridworld.GridWorldCore(config, len(rows), seed=0)
+            smaller.copy_worlds(rows, np.arange(len(rows)), source=copies)
+            copies, owner, keep = smaller, owner[rows], keep[rows]
+            sub.maps, sub.extra, sub.battery = sub.maps[rows], sub.extra[rows], sub.battery[rows]
+            sub.hint = None if sub.hint is None else sub.hint[rows]
+            fallback.take(rows)
+        maps, extras = sub.get()
+        with torch.no_grad():
+            action = policy(*to_torch(maps, extras, device)).argmax(1).cpu().numpy()
+        action, _ = fallback.act(copies, action, ~keep)
+        ev = copies.step(np.where(keep, action, gridworld.WAIT)[:, None])
+        fallback.stepped(copies, ev["new"][:, 0])
+        sub.push(observe(copies, hint, dead_ends_first), np.zeros(len(owner), bool))
+    return out
 
 
 
@@ -1151,11 +1262,9 @@ def evaluate_policy(q: QNetwork, scenarios: list, frames: int, sensor: str = "fu
     n, hint = len(scenarios), bool(spec.get("hint"))
     stack = Stacker(n, frames, *frame_shape(observation)[::-1], hint=hint)
     stack.push(observe(core, hint, dead_ends_first), np.ones(n, bool))
-    done, truncated = np.zeros(n, bool), np.zeros(n, bool)
-    since_new, used = np.zeros(n, np.int64), np.zeros(n, np.int64)
-    times_stuck, owed = np.zeros(n, np.int64), np.zeros(n, np.int64)  # owed: new cells left to the heuristic
+    done, truncated, used = np.zeros(n, bool), np.zeros(n, bool), np.zeros(n, np.int64)
     steps = np.zeros(n, np.int64)  # each world's own, not counting the waits after its end
-    history = [core.agent_cells()[:, 0]] * 6  # cells at t-5 .. t
+    fallback = Fallback(core, random_ties, dead_ends_first)
     cells = [core.agent_cells()]
     q.reset_noise(False)
     with torch.no_grad():
@@ -1165,19 +1274,11 @@ def evaluate_policy(q: QNetwork, scenarios: list, frames: int, sensor: str = "fu
             action = np.full(n, gridworld.WAIT)
             action[active] = q(*to_torch(maps[active], extras[active], device)).argmax(1).cpu().numpy()
             if heuristic:
-                moved = np.abs(core.agent_cells()[:, 0] - history[0]).sum(1)
-                now_stuck = stuck(since_new, moved, core.hw.max(1)) & ~done & (owed == 0)
-                times_stuck += now_stuck
-                owed = np.where(now_stuck, times_stuck, owed)
-                fallback = (owed > 0) & ~done
-                if fallback.any():
-                    action = np.where(fallback, core.heuristic_actions(random_ties, dead_ends_first)[:, 0], action)
-                used += fallback
+                action, helped = fallback.act(core, action, done)
+                used += helped
             ev = core.step(np.where(done, gridworld.WAIT, action)[:, None])
             steps += ~done
-            since_new = np.where(ev["new"][:, 0], 0, since_new + 1)
-            owed = np.maximum(owed - ev["new"][:, 0], 0)
-            history = history[1:] + [core.agent_cells()[:, 0]]
+            fallback.stepped(core, ev["new"][:, 0])
             if trajectories is not None:
                 cells.append(core.agent_cells())
             truncated |= ev["truncated"] & ~done
@@ -1239,6 +1340,8 @@ def main(args: Args) -> None:
     yardstick: dict = {}  # stage index -> the heuristic alone on that stage's evaluation maps
     updates_due, last_log, last_loss_log, t0 = 0.0, global_step, global_step, time.time() - wall
     n_labels, label_time = 0, 0.0  # --teacher rollout: its labels and the seconds they took
+    policy = build_network(q.network(), args.sigma0).to(device) if args.teacher == "policy-rollout" else None
+    refreshed = global_step - args.policy_refresh  # --teacher policy-rollout: the greedy network's copy, made at once
     departures = np.zeros(3, np.int64)  # of the rollout's labels: departures from the heuristic, the network's agreeing
     latest = ""
     stop = {"now": False}
@@ -1254,6 +1357,10 @@ def main(args: Args) -> None:
             stage_index += 1
             core.configure(stage_config(stages[stage_index], args))
         # ALGO LOGIC: put action logic here
+        if policy is not None and global_step - refreshed >= args.policy_refresh:
+            policy.load_state_dict(q.state_dict())
+            policy.reset_noise(False)
+            refreshed = global_step
         with torch.no_grad():
             action = q(*to_torch(*stack.get(), device)).argmax(1).cpu().numpy()
         moved = np.abs(core.agent_cells()[:, 0] - history[0]).sum(1)
@@ -1262,9 +1369,9 @@ def main(args: Args) -> None:
         if teach.any() or labelled(args):  # the hint is this heuristic's move when ties are not random
             label = (obs["hint"] if args.hint and not args.heuristic_random_ties else
                      core.heuristic_actions(args.heuristic_random_ties, args.heuristic_dead_ends)[:, 0])
-        if args.teacher == "rollout" and label is not None:
+        if args.teacher != "heuristic" and label is not None:
             tick = time.perf_counter()
-            heuristic_label, (label, w) = label, rollout_labels(core, label, teach, args, rng)
+            heuristic_label, (label, w) = label, rollout_labels(core, label, teach, args, rng, policy, stack)
             n_labels, label_time = n_labels + len(w), label_time + time.perf_counter() - tick
             off = w[label[w] != heuristic_label[w]]
             departures += len(w), len(off), int((action[off] == label[off]).sum())
@@ -1340,7 +1447,7 @@ def main(args: Args) -> None:
             sps = int(global_step / max(time.time() - t0, 1e-9))
             writer.add_scalar("charts/SPS", sps, global_step)
             rate = ""
-            if args.teacher == "rollout" and label_time > 0:
+            if args.teacher != "heuristic" and label_time > 0:
                 writer.add_scalar("charts/labels_per_s", n_labels / label_time, global_step)
                 rate = f", labels/s {n_labels / label_time:.0f}"
             bar.set_postfix_str(f"{stages[stage_index].name}, SPS {sps}{rate}{latest}", refresh=False)
@@ -1385,8 +1492,8 @@ def main(args: Args) -> None:
     writer.close()
     signal.signal(signal.SIGINT, previous_handler)
     print(f"saved {os.path.join(run_dir, 'checkpoint.pt')} and {args.export} at step {global_step:,}")
-    if args.teacher == "rollout":
-        print(f"rollout teacher: {n_labels:,} labels in {label_time:.1f} s, {n_labels / max(label_time, 1e-9):.0f} "
+    if args.teacher != "heuristic":
+        print(f"{args.teacher} teacher: {n_labels:,} labels in {label_time:.1f} s, {n_labels / max(label_time, 1e-9):.0f} "
               "labels/s")
 
 

@@ -170,10 +170,56 @@ def test_known_view_teacher_run_records_its_flag(tmp_path, monkeypatch, restore_
                                      (dict(teacher="rollout", teacher_view="map"), "--teacher-view must be one of full"),
                                      (dict(teacher_view="known"), "--teacher-view known needs --teacher rollout"),
                                      (dict(label_fraction=1.5), r"--label-fraction must be in \[0, 1\]"),
-                                     (dict(label_fraction=-0.1), r"--label-fraction must be in \[0, 1\]")])
+                                     (dict(label_fraction=-0.1), r"--label-fraction must be in \[0, 1\]"),
+                                     (dict(teacher="policy-rollout", teacher_view="known"),
+                                      "--teacher-view known needs --teacher rollout"),
+                                     (dict(teacher="policy-rollout", policy_refresh=0),
+                                      "--policy-refresh must be at least 1")])
 def test_bad_teacher_flags_are_one_line_errors(tmp_path, monkeypatch, restore_sigint, kw, msg):
     monkeypatch.chdir(tmp_path)
     with pytest.raises(ValueError, match=msg) as e:
         rc.main(tiny(tmp_path, **kw))
     assert "\n" not in str(e.value)
     assert not (tmp_path / "runs").exists()
+
+
+# ----------------------------------------------------------------------------- rainbow_cpp --teacher policy-rollout
+class HintCopier(torch.nn.Module):
+    """A policy that takes the hint (the deterministic heuristic's move, the last 5 extras): greedy-dead-ends."""
+
+    def __init__(self):
+        super().__init__()
+        self.unused = torch.nn.Parameter(torch.zeros(1))
+
+    def forward(self, maps, extras):
+        return extras[:, -rc.HINTS:-1] + 0 * self.unused
+
+
+def test_policy_rollout_of_the_heuristic_is_the_rollout():
+    """With a policy that copies the heuristic, the policy's rollout is the heuristic's: rollout_actions' labels."""
+    spec = dict(network="compact", frames=2, hint=True, scales=3, scale_factor=3, scale_view=11)
+    observation = rc.observation_settings(spec)
+    channels, view = rc.frame_shape(observation)
+    core = gw.GridWorldCore(gw.EnvConfig(size=9, min_size=5, random_size=True, map_family="mixed", number_obstacles=8,
+                                         obstacles_random=True, battery_factor=1e6, **observation), 12, seed=5)
+    core.reset()
+    stack = rc.Stacker(12, 2, view, channels, hint=True)
+    stack.push(rc.observe(core, True), np.ones(12, bool))
+    rng = np.random.default_rng(5)
+    for t in range(20):  # part-walked by random moves and the heuristic's
+        act = rng.integers(0, 4, 12) if t % 2 else core.heuristic_actions(False, True)[:, 0]
+        core.step(act[:, None])
+        stack.push(rc.observe(core, True), np.zeros(12, bool))
+    live = np.flatnonzero(core.remaining > 0)
+    want = core.rollout_actions(live)
+    assert rc.policy_rollout_actions(core, live, HintCopier(), stack).tolist() == want.tolist()
+    assert rc.policy_rollout_actions(core, live[::-2], HintCopier(), stack).tolist() == want[::-2].tolist()
+
+
+def test_policy_rollout_teacher_run_records_its_flags(tmp_path, monkeypatch, restore_sigint, capsys):
+    monkeypatch.chdir(tmp_path)
+    rc.main(tiny(tmp_path, teacher="policy-rollout", label_fraction=0.5, policy_refresh=50, network="compact",
+                 hint=True))
+    info = json.loads((tmp_path / "m.json").read_text())
+    assert info["args"]["teacher"] == "policy-rollout" and info["args"]["policy_refresh"] == 50
+    assert "policy-rollout teacher:" in capsys.readouterr().out
