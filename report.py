@@ -65,7 +65,8 @@ SENSOR_PER_SIZE, SENSOR_PER_BAND = 2, 1  # the sensors part: 52 cpp_eval maps, 1
 MOVINGAI_PLANNERS = ("greedy", "greedy-dead-ends", "wavefront", "rollout", "lkh")  # beside the agent, where collected
 MARL_EVERY, MARL_AGENTS = 10, range(1, 16)  # rainbow_marl: every 10th marl_eval layout, N = 1..15 (Fig. 7.11)
 FAULTY_AT, FAULTY_AGENTS = 0.5, (2, 5, 10)  # §7.5.3.3: the last agent freezes halfway
-REWARDS = ("greedy", "pretrained", "competitive", "cooperative", "size_invariant")  # results/marl_rewards/ runs
+REWARD_BASELINES = ("greedy", "pretrained")  # results/marl_rewards/: these first, then one folder a training run
+T_975 = {1: 12.706, 2: 4.303, 3: 3.182, 4: 2.776, 5: 2.571, 6: 2.447, 7: 2.365, 8: 2.306, 9: 2.262}  # Student's t
 FIGURES = {"planners_by_size": "planners_overlap_by_size.png", "planners_external": "planners_external.png",
            "planners_structured": "planners_structured.png", "marl_baselines": "marl_baselines.png",
            "rainbow_cpp": "rainbow_overlap_by_size.png", "sensors": "rainbow_sensors.png",
@@ -152,8 +153,15 @@ def load_results(*folders: str) -> dict:
     results["paths"]["fig5_4"] = runs
     results["fig5_4"] = {} if runs is None else {
         name: read_json(os.path.join(runs, name)) for name in sorted(os.listdir(runs)) if name.endswith(".json")}
-    rewards = {name: find(os.path.join("marl_rewards", name, "summary.json")) for name in REWARDS}
-    results["marl_rewards"] = {name: read_json(path) for name, path in rewards.items() if path is not None}
+    names = sorted({n for f in folders if os.path.isdir(os.path.join(f, "marl_rewards"))
+                    for n in os.listdir(os.path.join(f, "marl_rewards"))}, key=lambda n: (n not in REWARD_BASELINES, n))
+    results["marl_rewards"] = {}
+    for name in names:  # each an evaluate.py summary.json, and the trained model's own JSON (model.json) beside it
+        path, model = find(os.path.join("marl_rewards", name, "summary.json")), None
+        if path is not None:
+            if os.path.exists(os.path.join(os.path.dirname(path), "model.json")):
+                model = read_json(os.path.join(os.path.dirname(path), "model.json"))
+            results["marl_rewards"][name] = {**read_json(path), **({"model": model} if model else {})}
     return results
 
 
@@ -789,15 +797,39 @@ def marl_lines(mr: dict, rewards: dict) -> list[str]:
                     f"{mr['agents'][str(int(n) - 1)]['time_save']:.3f}" if str(int(n) - 1) in mr["agents"] else "—"]
                    + walled(n, f) for n, f in mr["faulty"].items()])]
     if rewards:
-        first = next(iter(rewards.values()))
-        lines += [
-            "", f"Reward structures (§7.5.2, Figs. 7.7-7.8): `marl_rewards/*/summary.json`, written by `evaluate.py` "
-            f"(README for the training and evaluation commands); N = {first['agents']}, `{first['dataset']}` sizes "
-            f"{_sizes(first['by_size'])}, mean $t_{{sf}}$:", "",
-            table(["reward", "policy", "maps", "mean t_sf", "completed"],
-                  [[name, s["policy"], str(s["all"]["episodes"]), f"{s['all']['time_save']['mean']:.3f}",
-                    f"{100 * s['all']['completion_rate']:.0f}%"] for name, s in rewards.items()])]
+        lines += [""] + reward_lines(rewards)
     return lines
+
+
+def reward_lines(rewards: dict) -> list[str]:
+    """§7.5.2: the reward structures, each trained from the same model with the same budget over several seeds (a
+    run's model.json, written by its trainer, says which), mean t_sf over the seeds with a 95% interval (Student's t
+    over the seeds' means), beside the untrained baselines."""
+    first = next(iter(rewards.values()))
+    arms: dict = {}
+    for name, s in rewards.items():
+        key = (s["model"]["args"]["reward_structure"], s["model"]["args"]["gain"]) if "model" in s else (name, None)
+        arms.setdefault(key, []).append(s)
+    rows = []
+    for (structure, gain), runs in arms.items():
+        t = np.array([r["all"]["time_save"]["mean"] for r in runs])
+        half = T_975[len(t) - 1] * t.std(ddof=1) / np.sqrt(len(t)) if len(t) > 1 else None
+        rows.append([structure, "—" if gain is None else f"{gain:g}", str(len(t)), str(runs[0]["all"]["episodes"]),
+                     f"{t.mean():.3f}", "—" if half is None else f"{t.mean() - half:.3f} – {t.mean() + half:.3f}",
+                     f"{100 * min(r['all']['completion_rate'] for r in runs):.0f}%"])
+    trained = [s["model"] for s in rewards.values() if "model" in s]
+    budget = ""
+    if trained:
+        a = trained[0]["args"]
+        steps = sorted({m["global_step"] for m in trained})
+        budget = (f" Each run: {', '.join(f'{n:,}' for n in steps)} environment steps from `{a['init_from']}`, "
+                  f"margin loss {a['margin_loss']:g}, learning rate {a['learning_rate']:g}, replay ratio "
+                  f"{a['replay_ratio']:g}, random agent counts {'on' if a['random_agents'] else 'off'} (each run's "
+                  "`model.json`, written by its trainer, has every flag).")
+    return [f"Reward structures (§7.5.2, Figs. 7.7-7.8): `marl_rewards/*/summary.json`, written by `evaluate.py`; "
+            f"N = {first['agents']}, `{first['dataset']}` sizes {_sizes(first['by_size'])}, mean $t_{{sf}}$ over the "
+            f"runs of each structure with its 95% interval over seeds.{budget}", "",
+            table(["reward", "gain K", "runs", "maps", "mean t_sf", "95% interval", "completed"], rows)]
 
 
 def _fig5_4_runs(runs: dict) -> tuple[dict, list[str]]:

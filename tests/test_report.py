@@ -600,3 +600,23 @@ def test_evaluate_flags_need_no_subcommand(tmp_path):
     r = _cli("evaluate.py", "--policy", "greedy", "--maps", "maps/external/empty-8-8.map", "--out", str(tmp_path / "e"))
     assert r.returncode == 0, r.stderr
     assert (tmp_path / "e" / "summary.json").exists()
+
+
+def test_reward_structures_give_the_mean_over_seeds_with_a_t_interval():
+    """Three seeds of one structure at t_sf 0.5, 0.6, 0.7: mean 0.6, sample std 0.1, half-width
+    t(0.975, 2) * 0.1 / sqrt(3) = 4.303 * 0.0577 = 0.248; the untrained baselines have no interval."""
+    def summary(t, model=None):
+        s = {"policy": "marl", "dataset": "maps/marl_eval.npz", "agents": 2, "by_size": {"10": {}, "24": {}},
+             "all": {"episodes": 150, "completion_rate": 1.0, "time_save": {"mean": t}}}
+        return {**s, "model": model} if model else s
+
+    def model(seed):
+        return {"global_step": 30000, "args": {"reward_structure": "cooperative", "gain": 0.25, "seed": seed,
+                                               "init_from": "models/rainbow_cpp.pt", "margin_loss": 0.0,
+                                               "learning_rate": 1e-4, "replay_ratio": 4.0, "random_agents": False}}
+    rewards = {"greedy": summary(0.604), **{f"cooperative_k0.25_s{i}": summary(t, model(i))
+                                            for i, t in enumerate((0.5, 0.6, 0.7), 1)}}
+    text = "\n".join(report.reward_lines(rewards))
+    assert "| greedy | — | 1 | 150 | 0.604 | — | 100% |" in text
+    assert "| cooperative | 0.25 | 3 | 150 | 0.600 | 0.352 – 0.848 | 100% |" in text
+    assert "30,000 environment steps from `models/rainbow_cpp.pt`" in text
