@@ -814,7 +814,8 @@ def reward_lines(rewards: dict) -> list[str]:
     for (structure, gain), runs in arms.items():
         t = np.array([r["all"]["time_save"]["mean"] for r in runs])
         half = T_975[len(t) - 1] * t.std(ddof=1) / np.sqrt(len(t)) if len(t) > 1 else None
-        rows.append([structure, "—" if gain is None else f"{gain:g}", str(len(t)), str(runs[0]["all"]["episodes"]),
+        no_gain = gain is None or structure == "competitive"  # eq. 7.3 has no K
+        rows.append([structure, "—" if no_gain else f"{gain:g}", str(len(t)), str(runs[0]["all"]["episodes"]),
                      f"{t.mean():.3f}", "—" if half is None else f"{t.mean() - half:.3f} – {t.mean() + half:.3f}",
                      f"{100 * min(r['all']['completion_rate'] for r in runs):.0f}%"])
     trained = [s["model"] for s in rewards.values() if "model" in s]
