@@ -898,6 +898,26 @@ def _maze(rng, hw, H, W, p: FamilyParams) -> np.ndarray:
 
 
 # ----------------------------------------------------------------------------- the core
+def _grown(front: np.ndarray, Wp: int) -> np.ndarray:
+    """Flat bordered maps (n, P), rows Wp wide, grown by the 4-neighbourhood (the border stops wrap-around)."""
+    grown = front.copy()
+    grown[:, Wp:] |= front[:, :-Wp]
+    grown[:, :-Wp] |= front[:, Wp:]
+    grown[:, 1:] |= front[:, :-1]
+    grown[:, :-1] |= front[:, 1:]
+    return grown
+
+
+def _neighbours(poi: np.ndarray, Wp: int) -> np.ndarray:
+    """How many of each cell's 4 neighbours are points of interest, for flat bordered maps (n, P)."""
+    degree = np.zeros(poi.shape, np.int64)
+    degree[:, Wp:] += poi[:, :-Wp]
+    degree[:, :-Wp] += poi[:, Wp:]
+    degree[:, 1:] += poi[:, :-1]
+    degree[:, :-1] += poi[:, 1:]
+    return degree
+
+
 def _path_tables(free: np.ndarray, Wp: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Shortest paths between the free cells of one flat bordered map (row width Wp), for the rollouts' walkers:
     the table row of each cell (-1 where not free); the distance from each free cell to every cell (int16, 32767
@@ -913,12 +933,7 @@ def _path_tables(free: np.ndarray, Wp: int) -> tuple[np.ndarray, np.ndarray, np.
     visited, i = front.copy(), 0
     while front.any():  # breadth-first from every free cell at once
         dist[front] = i
-        grown = front.copy()
-        grown[:, Wp:] |= front[:, :-Wp]
-        grown[:, :-Wp] |= front[:, Wp:]
-        grown[:, 1:] |= front[:, :-1]
-        grown[:, :-1] |= front[:, 1:]
-        front = grown & free & ~visited
+        front = _grown(front, Wp) & free & ~visited
         visited |= front
         i += 1
     ahead = np.full((4, n, P), far, np.int16)  # the distance of each cell's N, S, W, E neighbour
@@ -991,12 +1006,7 @@ class _Walkers:
         poi = self.poi[far]
         dist = np.where(poi, dist, np.iinfo(np.int16).max)
         nearest = dist == dist.min(1, keepdims=True)
-        degree = np.zeros(poi.shape, np.int64)
-        if self.dead_ends_first:
-            degree[:, Wp:] += poi[:, :-Wp]
-            degree[:, :-Wp] += poi[:, Wp:]
-            degree[:, 1:] += poi[:, :-1]
-            degree[:, :-1] += poi[:, 1:]
+        degree = _neighbours(poi, Wp) if self.dead_ends_first else 0
         goal = np.where(nearest & poi, self._key(degree, np.arange(poi.shape[1])), np.iinfo(np.int64).max).argmin(1)
         first = np.array([t[2][r, g] for (t, r), g in zip(rows, goal)], np.int64)
         move = (first[:, None] == self.pos[far, None] + self.delta).argmax(1)
@@ -1012,12 +1022,7 @@ class _Walkers:
         visited, layers = front.copy(), [front]
         goal, dist = np.zeros(k, np.int64), np.zeros(k, np.int64)
         while True:
-            grown = front.copy()
-            grown[:, Wp:] |= front[:, :-Wp]
-            grown[:, :-Wp] |= front[:, Wp:]
-            grown[:, 1:] |= front[:, :-1]
-            grown[:, :-1] |= front[:, 1:]
-            front = grown & free & ~visited
+            front = _grown(front, Wp) & free & ~visited
             front[dist > 0] = False  # walkers that found their target stop
             if not front.any():
                 break
@@ -1026,13 +1031,8 @@ class _Walkers:
             hit = front & poi
             found = np.flatnonzero(hit.any(1))
             if len(found):
-                p = poi[found]
-                degree = np.zeros(p.shape, np.int64)
-                degree[:, Wp:] += p[:, :-Wp]
-                degree[:, :-Wp] += p[:, Wp:]
-                degree[:, 1:] += p[:, :-1]
-                degree[:, :-1] += p[:, 1:]
-                key = np.where(hit[found], self._key(degree, np.arange(p.shape[1])), np.iinfo(np.int64).max)
+                degree = _neighbours(poi[found], Wp) if self.dead_ends_first else 0
+                key = np.where(hit[found], self._key(degree, np.arange(poi.shape[1])), np.iinfo(np.int64).max)
                 goal[found], dist[found] = key.argmin(1), len(layers) - 1
         for i in range(int(dist.max()) - 1, 0, -1):  # walk back from the goal to distance 1
             near = goal[:, None] + self.delta
