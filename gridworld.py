@@ -1868,7 +1868,7 @@ class GridWorldCore:
         return move.reshape(B, N)
 
     def rollout_actions(self, worlds=None, dead_ends_first: bool = True, max_steps: int | None = None,
-                        view: str = "full") -> np.ndarray:
+                        view: str = "full", gains: bool = False):
         """The one-step rollout (Bertsekas) of the deterministic heuristic (random_ties=False; greedy-dead-ends
         by default) for one agent, batched: in each given world (all by default; a bool mask or indices) try
         each move, finish each try with the heuristic and take the move with the fewest total steps (the
@@ -1882,7 +1882,9 @@ class GridWorldCore:
         a blocked move is not a try, and a world with a single try takes it at once. A try that can reach no
         point of interest never finishes. After max_steps steps (default 4 * H * W) the heuristic's own move is
         kept. A finished world, or one whose agent is absent or frozen, gets the heuristic's move (WAIT). This
-        core is not changed (nor its random stream)."""
+        core is not changed (nor its random stream). With gains=True it also returns, per world, how many steps
+        the heuristic's own move needs beyond the chosen one (its try runs on to its end; max_steps where it
+        cannot finish; 0 where the two agree)."""
         if self.N != 1:
             raise ValueError(f"rollout_actions plans for one agent, the worlds have {self.N}")
         if view not in ("full", "known"):
@@ -1890,7 +1892,7 @@ class GridWorldCore:
         w = self._world_indices(worlds)
         n, K = len(w), 4
         if n == 0:
-            return np.zeros(0, np.int64)
+            return (np.zeros(0, np.int64), np.zeros(0, np.int64)) if gains else np.zeros(0, np.int64)
         c, H, W = self.c, self.H, self.W
         inner = (w, slice(c, c + H), slice(c, c + W))
         free, covered = ~self.obstacle[inner], self.covered[inner]
@@ -1916,14 +1918,20 @@ class GridWorldCore:
         walkers = walkers.take(owner // K)
         walkers.step(owner % K)
         limit = 4 * H * W if max_steps is None else max_steps
+        open_ = np.ones(n, bool)  # worlds not decided yet
+        won, lost = np.zeros(n, np.int64), np.full(n, limit)  # gains: the chosen try's steps, the heuristic's
         for t in range(1, limit + 1):  # t: the steps each running try has taken
             done = np.zeros(n * K, bool)
             done[owner] = walkers.remaining == 0
             done = done.reshape(n, K)
-            decided = done.any(1)
+            decided = done.any(1) & open_
             if decided.any():
                 out[decided] = np.where(done[decided], priority[decided], K).argmin(1)
-                run[decided] = False
+                open_[decided], won[decided] = False, t
+                run[decided] = gains & (moves == base[decided, None]) & (out[decided, None] != base[decided, None])
+            ended = done[np.arange(n), np.minimum(base, K - 1)] & ~open_ & (lost == limit)
+            lost[ended] = t
+            run[ended] = False
             if t == limit:
                 break
             move = walkers.moves()
@@ -1933,6 +1941,8 @@ class GridWorldCore:
             if len(owner) == 0:
                 break
             walkers.step(move)
+        if gains:
+            return out, np.where((out == base) | ~live | single, 0, lost - won)
         return out
 
     def _path_tables_of(self, free: np.ndarray, Wp: int) -> list:

@@ -73,6 +73,33 @@ def test_rollout_beats_the_heuristic_by_hand():
     assert len(cc.greedy_dead_ends(s)[0]) - 1 == 8 and len(cc.rollout(s)[0]) - 1 == 7
 
 
+def heuristic_steps_after(scenario: gw.Scenario, first: int) -> int:
+    """Steps to cover the map: `first`, then greedy-dead-ends to the end."""
+    core = core_of([scenario])
+    core.step(np.array([[first]]))
+    steps = 1
+    while core.remaining[0] > 0:
+        core.step(core.heuristic_actions(False, True))
+        steps += 1
+    return steps
+
+
+def test_rollout_gains_by_hand_and_by_walking_both_moves():
+    """The example above: WEST then the heuristic takes 8 steps, EAST 7, so EAST gains 1. On random maps the gain is
+    the heuristic's steps after its own move minus those after the rollout's (0 where they agree), and asking for
+    gains does not change the moves."""
+    out, gain = core_of([from_rows(["..@.", ".00."])]).rollout_actions(gains=True)
+    assert out.tolist() == [gw.EAST] and gain.tolist() == [1]
+    maps = random_maps(20, seed=3)
+    core = core_of(maps)
+    base = core.heuristic_actions(False, True)[:, 0]
+    out, gain = core.rollout_actions(gains=True)
+    assert out.tolist() == core.rollout_actions().tolist()
+    want = [heuristic_steps_after(s, b) - heuristic_steps_after(s, o) if o != b else 0
+            for s, b, o in zip(maps, base, out)]
+    assert gain.tolist() == want and (gain > 0).any() and (gain >= 0).all()
+
+
 def test_rollout_actions_equal_rollout_many_first_moves():
     maps = random_maps(20)
     core = core_of(maps)
@@ -97,6 +124,7 @@ def test_rollout_actions_leave_the_core_alone_and_handle_finished_worlds():
         assert np.array_equal(getattr(core, k), v), k
     assert core.rng.bit_generator.state == rng_state
     assert core.rollout_actions([]).shape == (0,)
+    assert [a.shape for a in core.rollout_actions([], gains=True)] == [(0,), (0,)]
 
 
 def test_rollout_actions_plan_on_the_full_state_in_sensor_tasks():
