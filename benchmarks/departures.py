@@ -59,6 +59,8 @@ class Args:
     """smallest map side"""
     test_share: float = 0.2
     """the share of the maps (the last ones walked) held out for the test"""
+    fit_share: float = 1.0
+    """the share of the other maps trained on (a learning curve: the test maps stay the same)"""
     epochs: int = 6
     """training passes over the training states"""
     departure_weight: float = 2.0
@@ -210,7 +212,8 @@ def main(args: Args) -> None:
     maps = np.unique(data["map"])
     test_maps = maps[int(len(maps) * (1 - args.test_share)):]
     test = np.flatnonzero(np.isin(data["map"], test_maps))
-    fit = np.flatnonzero(~np.isin(data["map"], test_maps))
+    fit_maps = maps[:int(len(maps) * (1 - args.test_share) * args.fit_share)]
+    fit = np.flatnonzero(np.isin(data["map"], fit_maps))
     dep = data["label"] != data["hint"]
     print(f"{len(fit):,} training states ({dep[fit].mean():.2%} departures), {len(test):,} test states "
           f"({dep[test].mean():.2%} departures)")
