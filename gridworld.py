@@ -1868,7 +1868,7 @@ class GridWorldCore:
         return move.reshape(B, N)
 
     def rollout_actions(self, worlds=None, dead_ends_first: bool = True, max_steps: int | None = None,
-                        view: str = "full", gains: bool = False):
+                        view: str = "full", costs: bool = False):
         """The one-step rollout (Bertsekas) of the deterministic heuristic (random_ties=False; greedy-dead-ends
         by default) for one agent, batched: in each given world (all by default; a bool mask or indices) try
         each move, finish each try with the heuristic and take the move with the fewest total steps (the
@@ -1882,9 +1882,9 @@ class GridWorldCore:
         a blocked move is not a try, and a world with a single try takes it at once. A try that can reach no
         point of interest never finishes. After max_steps steps (default 4 * H * W) the heuristic's own move is
         kept. A finished world, or one whose agent is absent or frozen, gets the heuristic's move (WAIT). This
-        core is not changed (nor its random stream). With gains=True it also returns, per world, how many steps
-        the heuristic's own move needs beyond the chosen one (its try runs on to its end; max_steps where it
-        cannot finish; 0 where the two agree)."""
+        core is not changed (nor its random stream). With costs=True every try runs on to its end and it also
+        returns (len(worlds), 4) steps to cover the map after each first move, that move included (max_steps
+        where the heuristic cannot finish, -1 for a move not tried: blocked, or a world's only move)."""
         if self.N != 1:
             raise ValueError(f"rollout_actions plans for one agent, the worlds have {self.N}")
         if view not in ("full", "known"):
@@ -1892,7 +1892,7 @@ class GridWorldCore:
         w = self._world_indices(worlds)
         n, K = len(w), 4
         if n == 0:
-            return (np.zeros(0, np.int64), np.zeros(0, np.int64)) if gains else np.zeros(0, np.int64)
+            return (np.zeros(0, np.int64), np.zeros((0, K), np.int64)) if costs else np.zeros(0, np.int64)
         c, H, W = self.c, self.H, self.W
         inner = (w, slice(c, c + H), slice(c, c + W))
         free, covered = ~self.obstacle[inner], self.covered[inner]
@@ -1919,19 +1919,18 @@ class GridWorldCore:
         walkers.step(owner % K)
         limit = 4 * H * W if max_steps is None else max_steps
         open_ = np.ones(n, bool)  # worlds not decided yet
-        won, lost = np.zeros(n, np.int64), np.full(n, limit)  # gains: the chosen try's steps, the heuristic's
+        steps = np.where(run, limit, -1)  # costs: each try's steps to the end
         for t in range(1, limit + 1):  # t: the steps each running try has taken
             done = np.zeros(n * K, bool)
             done[owner] = walkers.remaining == 0
             done = done.reshape(n, K)
+            steps[done] = t
             decided = done.any(1) & open_
             if decided.any():
                 out[decided] = np.where(done[decided], priority[decided], K).argmin(1)
-                open_[decided], won[decided] = False, t
-                run[decided] = gains & (moves == base[decided, None]) & (out[decided, None] != base[decided, None])
-            ended = done[np.arange(n), np.minimum(base, K - 1)] & ~open_ & (lost == limit)
-            lost[ended] = t
-            run[ended] = False
+                open_[decided] = False
+                run[decided] &= costs  # with costs the other tries run on
+            run &= ~done
             if t == limit:
                 break
             move = walkers.moves()
@@ -1941,9 +1940,7 @@ class GridWorldCore:
             if len(owner) == 0:
                 break
             walkers.step(move)
-        if gains:
-            return out, np.where((out == base) | ~live | single, 0, lost - won)
-        return out
+        return (out, steps) if costs else out
 
     def _path_tables_of(self, free: np.ndarray, Wp: int) -> list:
         """_path_tables of each flat bordered map (n, P), kept between calls by map. A map over PATH_TABLE_CELLS

@@ -67,6 +67,12 @@ class Args:
     """the cross-entropy weight of a departure state"""
     min_gain: int = 1
     """train toward departures that save at least this many steps; the others are labelled with the hint"""
+    target: str = "labels"
+    """"labels": cross-entropy toward the rollout's move; "costs": regress the Q values' differences onto minus
+    each move's steps to the end (the rollout's costs, capped at --cost-cap more than the best; a blocked move
+    counts as the cap)"""
+    cost_cap: float = 10.0
+    """--target costs: the largest extra cost a move is given"""
     learning_rate: float = 1e-4
     """Adam's step size"""
     batch_size: int = 256
@@ -89,7 +95,7 @@ def collect(args: Args, q: torch.nn.Module, spec: dict) -> dict:
     with the rollout."""
     observation, frames = rc.observation_settings(spec), spec["frames"]
     channels, view = rc.frame_shape(observation)
-    out = {k: [] for k in ("maps", "extras", "label", "gain", "hint", "family", "map")}
+    out = {k: [] for k in ("maps", "extras", "label", "cost", "hint", "family", "map")}
     n_states, batch, tick = 0, 0, time.perf_counter()
     while n_states < args.states:
         family = FAMILIES[batch % len(FAMILIES)]
@@ -111,9 +117,9 @@ def collect(args: Args, q: torch.nn.Module, spec: dict) -> dict:
                     action[live] = q(*rc.to_torch(maps[live], extras[live])).argmax(1).numpy()
                 out["maps"].append(maps[live])
                 out["extras"].append(extras[live])
-                label, gain = core.rollout_actions(live, gains=True)
+                label, cost = core.rollout_actions(live, costs=True)
                 out["label"].append(label)
-                out["gain"].append(gain)
+                out["cost"].append(cost)
                 out["hint"].append(stack.hint[live])
                 out["family"].append(np.full(len(live), batch % len(FAMILIES)))
                 out["map"].append(batch * n + live)
@@ -129,6 +135,13 @@ def collect(args: Args, q: torch.nn.Module, spec: dict) -> dict:
     return {k: np.concatenate(v) for k, v in out.items()}
 
 
+def gains(data: dict) -> np.ndarray:
+    """The steps the rollout's move saves over the hint's (0 where they agree or nothing was tried)."""
+    rows, cost = np.arange(len(data["label"])), data["cost"]
+    hint = np.minimum(data["hint"], 3)
+    return np.where(data["label"] != data["hint"], cost[rows, hint] - cost[rows, data["label"]], 0).clip(0)
+
+
 def scores(q: torch.nn.Module, data: dict, rows: np.ndarray) -> dict:
     """Agreement with the labels, departure recall and false departures over `rows`, overall and per family."""
     q.reset_noise(False)
@@ -139,7 +152,7 @@ def scores(q: torch.nn.Module, data: dict, rows: np.ndarray) -> dict:
     label, hint, family = data["label"][rows], data["hint"][rows], data["family"][rows]
     departure = label != hint
 
-    gain = data["gain"][rows] if "gain" in data else None
+    gain = gains(data)[rows] if "cost" in data else None
 
     def of(mask):
         dep, kept = mask & departure, mask & ~departure
@@ -157,8 +170,14 @@ def train(q: torch.nn.Module, data: dict, rows: np.ndarray, args: Args, rng: np.
     """Cross-entropy of q's values toward the labels, departures weighted; returns the seconds it took."""
     optimizer = torch.optim.Adam(q.parameters(), lr=args.learning_rate)
     q.reset_noise(False)  # a supervised fit of the mean weights, which evaluation uses
-    label = np.where(data["gain"] >= args.min_gain, data["label"], data["hint"]) if "gain" in data else data["label"]
+    label = np.where(gains(data) >= args.min_gain, data["label"], data["hint"]) if "cost" in data else data["label"]
     weight = np.where(label != data["hint"], args.departure_weight, 1.0).astype(np.float32)
+    if args.target == "costs":  # minus the extra steps of each move over the best, capped; nothing for untried worlds
+        cost = data["cost"].astype(np.float32)
+        tried = cost >= 0
+        best = np.where(tried, cost, np.inf).min(1, keepdims=True)
+        value = -np.minimum(np.where(tried, cost - best, args.cost_cap), args.cost_cap).astype(np.float32)
+        value[~tried.any(1)] = np.nan
     tick = time.perf_counter()
     for epoch in range(args.epochs):
         order = rng.permutation(rows)
@@ -166,8 +185,15 @@ def train(q: torch.nn.Module, data: dict, rows: np.ndarray, args: Args, rng: np.
         for i in range(0, len(order), args.batch_size):
             r = np.sort(order[i:i + args.batch_size])
             logits = q(*rc.to_torch(data["maps"][r], data["extras"][r]))
-            loss = (F.cross_entropy(logits, torch.from_numpy(label[r]), reduction="none")
-                    * torch.from_numpy(weight[r])).mean()
+            if args.target == "costs":
+                target = torch.from_numpy(value[r])
+                ok = ~target[:, 0].isnan()
+                centred = logits[ok] - logits[ok].mean(1, keepdim=True)
+                loss = (F.smooth_l1_loss(centred, target[ok] - target[ok].mean(1, keepdim=True), reduction="none")
+                        .sum(1) * torch.from_numpy(weight[r])[ok]).mean()
+            else:
+                loss = (F.cross_entropy(logits, torch.from_numpy(label[r]), reduction="none")
+                        * torch.from_numpy(weight[r])).mean()
             optimizer.zero_grad()
             loss.backward()
             optimizer.step()
@@ -190,6 +216,8 @@ def main(args: Args) -> None:
     pin(args.cpu)
     torch.set_num_threads(1)
     torch.manual_seed(args.seed)
+    if args.target not in ("labels", "costs"):
+        raise ValueError(f"--target must be labels or costs, got {args.target!r}")
     if args.network not in ("model", "fig6.8"):
         raise ValueError(f"--network must be model or fig6.8, got {args.network!r}")
     q = rc.load_policy(args.model)
