@@ -1,7 +1,7 @@
 """Can the student learn the rollout's departures? An offline probe of issue 17's bottleneck.
 
     python benchmarks/departures.py --data runs/departures.npz          # collect (~20 min), then train and test
-    python benchmarks/departures.py --data runs/departures.npz --epochs 8 --departure-weight 20   # reuse the states
+    python benchmarks/departures.py --data runs/departures.npz --epochs 12 --margins 0 1 --check   # reuse the states
 
 Collect: a rainbow_cpp export (--model, with the heuristic fallback, as evaluate.py runs it) walks fresh maps of each
 family in turn (sizes --min-size..--size), and every state it visits is labelled with the one-step rollout of
@@ -13,8 +13,10 @@ Train: a copy of the model is trained on the first maps' states by cross-entropy
 (departures weighted --departure-weight), --epochs passes, and tested on the held-out maps' states.
 
 Prints, for the model before and after: agreement with the labels, departure recall (the label taken where the label
-is a departure), false departures (a move other than the hint where the hint is the label), and per family; one JSON
-line with every number. numpy and torch run on one thread pinned to --cpu.
+is a departure), false departures (a move other than the hint where the hint is the label), precision (the label
+taken where the student leaves the hint), and per family; the same for the trained copy gated at each --margins; with
+--check the gated copies' mean overlap on every 7th structured_eval map; one JSON line with every number. numpy and
+torch run on one thread pinned to --cpu.
 """
 from __future__ import annotations
 
@@ -34,9 +36,11 @@ import torch  # noqa: E402
 import torch.nn.functional as F  # noqa: E402
 import tyro  # noqa: E402
 
-sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, ROOT)
 from cpu import pin  # noqa: E402
 
+import evaluate  # noqa: E402
 import gridworld as gw  # noqa: E402
 import rainbow_cpp as rc  # noqa: E402
 
@@ -86,8 +90,15 @@ class Args:
     network over the deep observation, the 41x41 window at full resolution; the heuristic walks the maps)"""
     hidden: int = 256
     """--network fig6.8: the streams' width"""
-    save: str | None = None
-    """save the trained copy here as an export evaluate.py reads (--checkpoint); never over an existing file"""
+    margins: tuple[float, ...] = (0.0,)
+    """test the trained copy gated at each margin: it leaves the hint only where its best Q value beats the hint's
+    by more than the margin"""
+    check: bool = False
+    """also run the trained copy, gated at each margin, on every 7th structured_eval map with the heuristic fallback
+    (rainbow_cpp.evaluate_policy, as evaluate.py does) and print the mean overlap"""
+    export: str | None = None
+    """save the trained copy here (rainbow_cpp.export: weights and a JSON) for evaluate.py --checkpoint; never over
+    an existing file"""
 
 
 def collect(args: Args, q: torch.nn.Module, spec: dict) -> dict:
@@ -142,11 +153,31 @@ def gains(data: dict) -> np.ndarray:
     return np.where(data["label"] != data["hint"], cost[rows, hint] - cost[rows, data["label"]], 0).clip(0)
 
 
-def scores(q: torch.nn.Module, data: dict, rows: np.ndarray) -> dict:
-    """Agreement with the labels, departure recall and false departures over `rows`, overall and per family."""
+class Gated(torch.nn.Module):
+    """A hinted network whose hint move gets `margin` added to its Q value: it leaves the hint only where another
+    move's value beats the hint's by more than the margin."""
+
+    def __init__(self, q: torch.nn.Module, margin: float):
+        super().__init__()
+        self.q, self.margin = q, margin
+
+    def network(self) -> dict:
+        return self.q.network()
+
+    def reset_noise(self, on: bool = True):
+        self.q.reset_noise(on)
+
+    def forward(self, maps, extras):
+        return self.q(maps, extras) + self.margin * extras[:, -rc.HINTS:-1]  # the hint's one-hot, WAIT dropped
+
+
+def scores(q: torch.nn.Module, data: dict, rows: np.ndarray, margin: float = 0.0) -> dict:
+    """Agreement with the labels, departure recall, false departures and the precision of the departures taken over
+    `rows`, overall and per family, of q gated at `margin`."""
+    gated = Gated(q, margin)
     q.reset_noise(False)
     with torch.no_grad():
-        pick = np.concatenate([q(*rc.to_torch(data["maps"][r], data["extras"][r])).argmax(1).numpy()
+        pick = np.concatenate([gated(*rc.to_torch(data["maps"][r], data["extras"][r])).argmax(1).numpy()
                                for r in np.array_split(rows, max(1, len(rows) // 2048))])
     q.reset_noise(True)
     label, hint, family = data["label"][rows], data["hint"][rows], data["family"][rows]
@@ -158,7 +189,9 @@ def scores(q: torch.nn.Module, data: dict, rows: np.ndarray) -> dict:
         dep, kept = mask & departure, mask & ~departure
         saved = {} if gain is None or not dep.any() else {  # the share of the departures' steps the student takes
             "saving_recall": float(gain[dep & (pick == label)].sum() / max(gain[dep].sum(), 1))}
+        took = mask & (pick != hint)
         return {"states": int(mask.sum()), "departures": int(dep.sum()), **saved,
+                "precision": float((pick == label)[took].mean()) if took.any() else None,
                 "agreement": float((pick == label)[mask].mean()) if mask.any() else None,
                 "departure_recall": float((pick == label)[dep].mean()) if dep.any() else None,
                 "false_departures": float((pick != hint)[kept].mean()) if kept.any() else None}
@@ -208,8 +241,9 @@ def line(name: str, s: dict) -> str:
     fam = " ".join(f"{f} {s[f]['departure_recall']:.2f}/{s[f]['false_departures']:.3f}" for f in FAMILIES
                    if s[f]["departures"])
     saved = f", saving recall {a['saving_recall']:.3f}" if "saving_recall" in a else ""
+    precision = "-" if a["precision"] is None else f"{a['precision']:.3f}"
     return (f"{name}: agreement {a['agreement']:.4f}, departure recall {a['departure_recall']:.3f}{saved}, false "
-            f"departures {a['false_departures']:.4f}  (per family recall/false: {fam})")
+            f"departures {a['false_departures']:.4f}, precision {precision}  (per family recall/false: {fam})")
 
 
 def main(args: Args) -> None:
@@ -227,8 +261,8 @@ def main(args: Args) -> None:
     if args.network == "fig6.8":
         spec = {"network": "fig6.8", "frames": 3, "view": rc.VIEW, "hidden": args.hidden, "hint": True}
         q, walker = rc.build_network(spec, 0.0), None
-    if args.save and os.path.exists(args.save):
-        raise ValueError(f"--save {args.save}: the file exists")
+    if args.export and os.path.exists(args.export):
+        raise ValueError(f"--export {args.export}: the file exists")
     if os.path.exists(args.data):
         data = dict(np.load(args.data))
         print(f"{args.data}: {len(data['label']):,} states")
@@ -253,11 +287,24 @@ def main(args: Args) -> None:
     after, after_fit = scores(student, data, test), scores(student, data, fit)
     print(line("after (test)", after))
     print(line("after (train)", after_fit))
-    if args.save:
-        weights = {k: v.half() for k, v in student.state_dict().items() if "sigma" not in k and "eps" not in k}
-        torch.save({"weights": weights, **student.network()}, args.save)
+    gated, overlap = {}, {}
+    for margin in args.margins:
+        gated[margin] = scores(student, data, test, margin)
+        print(line(f"after (test, margin {margin:g})", gated[margin]))
+    if args.check:
+        scenarios = [s for _, s in evaluate.scenarios_from(  # evaluate.py's episodes: each map's starts, seeded
+            evaluate.Args(dataset=os.path.join(ROOT, "maps", "structured_eval.npz"), every=7))]
+        for margin in args.margins:
+            run = rc.evaluate_policy(Gated(student, margin), scenarios, spec["frames"])
+            overlap[margin] = float(run["overlap"].mean())
+            print(f"every 7th structured_eval map (240), margin {margin:g}: overlap {overlap[margin]:.3f}, "
+                  f"fallback {run['heuristic_steps'].sum() / run['steps'].sum():.1%}")
+    if args.export:
+        rc.export(student, args, {"probe": "benchmarks/departures.py", "states": len(data["label"]),
+                                  "train_seconds": round(seconds), "parent": rc.lineage(args.model)})
     print(json.dumps({"args": vars(args), "states": len(data["label"]), "train_seconds": round(seconds),
-                      "before": before, "after": after, "after_train": after_fit}))
+                      "before": before, "after": after, "after_train": after_fit, "gated": gated,
+                      "structured_overlap": overlap}))
 
 
 if __name__ == "__main__":
