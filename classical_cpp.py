@@ -321,12 +321,13 @@ def lkh(scenario: Scenario, time_limit: float = LKH_TIME_LIMIT, runs: int = 1) -
 
 
 # ----------------------------------------------------------------------------- greedy (batched)
-def greedy_many(scenarios: list[Scenario], dead_ends_first: bool = False) -> list[list[np.ndarray]]:
+def greedy_many(scenarios: list[Scenario], dead_ends_first: bool = False,
+                far_first: bool = False) -> list[list[np.ndarray]]:
     """The navigation heuristic run to completion in gridworld itself, for many maps at once:
     nearest known point of interest, first in row-major order on ties (with dead_ends_first,
-    the one with the fewest uncovered neighbours first); several agents claim distinct targets
-    (the nearest agent-target pair first)."""
-    return _run_many(scenarios, lambda core, live: core.heuristic_actions(False, dead_ends_first)[live])
+    the one with the fewest uncovered neighbours first; with far_first, the one farthest from
+    the start first); several agents claim distinct targets (the nearest agent-target pair first)."""
+    return _run_many(scenarios, lambda core, live: core.heuristic_actions(False, dead_ends_first, far_first)[live])
 
 
 def _run_many(scenarios: list[Scenario], act) -> list[list[np.ndarray]]:
@@ -370,17 +371,22 @@ def greedy_dead_ends(scenario: Scenario) -> list[np.ndarray]:
     return greedy_many([scenario], dead_ends_first=True)[0]
 
 
+def greedy_far_first(scenario: Scenario) -> list[np.ndarray]:
+    return greedy_many([scenario], dead_ends_first=True, far_first=True)[0]
+
+
 # ----------------------------------------------------------------------------- rollout (one-step lookahead)
-def heuristic_base(dead_ends_first: bool = True):
+def heuristic_base(dead_ends_first: bool = True, far_first: bool = False):
     """The navigation heuristic with deterministic ties as a rollout base: base(core) -> (B, N) actions."""
     def base(core: GridWorldCore) -> np.ndarray:
-        return core.heuristic_actions(random_ties=False, dead_ends_first=dead_ends_first)
+        return core.heuristic_actions(random_ties=False, dead_ends_first=dead_ends_first, far_first=far_first)
 
     base.markov = True  # its moves depend on the agents' cells and the coverage only
     return base
 
 
-ROLLOUT_BASES = {"greedy": heuristic_base(False), "greedy-dead-ends": heuristic_base(True)}  # --rollout-base
+ROLLOUT_BASES = {"greedy": heuristic_base(False), "greedy-dead-ends": heuristic_base(True),
+                 "greedy-far-first": heuristic_base(True, True)}  # --rollout-base
 _SPAWN, _RUN, _APPLY, _DONE = range(4)  # the phase of a map in rollout_many
 
 
@@ -669,12 +675,13 @@ class _Rollout:
         self.phase[m] = _APPLY if self.agent[m] == self.N else _SPAWN
 
 
-def team_rollout_many(scenarios: list[Scenario], dead_ends_first: bool = True) -> list[list[np.ndarray]]:
+def team_rollout_many(scenarios: list[Scenario], dead_ends_first: bool = True,
+                      far_first: bool = False) -> list[list[np.ndarray]]:
     """The multiagent rollout (Bertsekas 2020) of the heuristic with claims for many maps at once:
     GridWorldCore.team_rollout_actions at every step (agent i tries each move with agents < i on their chosen
     moves and agents > i on the heuristic's and keeps the one whose imagined team finishes first, then with the
     fewest agent moves: N * 4 tries a step, not 5^N); never a longer makespan than the heuristic's own."""
-    return _run_many(scenarios, lambda core, live: core.team_rollout_actions(live, dead_ends_first))
+    return _run_many(scenarios, lambda core, live: core.team_rollout_actions(live, dead_ends_first, far_first=far_first))
 
 
 def rollout(scenario: Scenario) -> list[np.ndarray]:
@@ -732,9 +739,11 @@ def lower_bound(scenario: Scenario) -> int:
     return math.ceil((~scenario.obstacles & ~covered).sum() / len(scenario.starts))
 
 
-PLANNERS = {"greedy": greedy, "greedy-dead-ends": greedy_dead_ends, "rollout": rollout, "boustrophedon": boustrophedon,
-            "spiral-stc": spiral_stc, "wavefront": wavefront, "lkh": lkh, "partition": partition}
-BATCHED = {"greedy": False, "greedy-dead-ends": True, "rollout": None}  # planned all at once: name -> dead_ends_first
+PLANNERS = {"greedy": greedy, "greedy-dead-ends": greedy_dead_ends, "greedy-far-first": greedy_far_first,
+            "rollout": rollout, "boustrophedon": boustrophedon, "spiral-stc": spiral_stc, "wavefront": wavefront,
+            "lkh": lkh, "partition": partition}
+# planned all at once: name -> (dead_ends_first, far_first)
+BATCHED = {"greedy": (False, False), "greedy-dead-ends": (True, False), "greedy-far-first": (True, True), "rollout": None}
 SINGLE_AGENT = {"boustrophedon", "spiral-stc", "wavefront", "lkh"}
 
 
@@ -786,10 +795,10 @@ def plan(name: str, scenarios: list[Scenario], rollout_base: str = "greedy-dead-
         if rollout_base not in ROLLOUT_BASES:
             raise ValueError(f"unknown rollout base {rollout_base!r}; choose from {sorted(ROLLOUT_BASES)}")
         singles = iter(rollout_many([s for s in scenarios if len(s.starts) == 1], ROLLOUT_BASES[rollout_base]))
-        teams = iter(team_rollout_many([s for s in scenarios if len(s.starts) > 1], BATCHED[rollout_base]))
+        teams = iter(team_rollout_many([s for s in scenarios if len(s.starts) > 1], *BATCHED[rollout_base]))
         return [next(teams if len(s.starts) > 1 else singles) for s in scenarios]
     if name in BATCHED:
-        return greedy_many(scenarios, dead_ends_first=BATCHED[name])
+        return greedy_many(scenarios, *BATCHED[name])
     return [PLANNERS[name](s) for s in scenarios]
 
 
@@ -797,7 +806,7 @@ def plan(name: str, scenarios: list[Scenario], rollout_base: str = "greedy-dead-
 @dataclass
 class Args:
     planner: str = "greedy"
-    """one of greedy, greedy-dead-ends, rollout, boustrophedon, spiral-stc, wavefront, lkh, partition"""
+    """one of greedy, greedy-dead-ends, greedy-far-first, rollout, boustrophedon, spiral-stc, wavefront, lkh, partition"""
     rollout_base: str = "greedy-dead-ends"
     """the base policy --planner rollout looks ahead with (greedy or greedy-dead-ends)"""
     maps: tuple[str, ...] = ()

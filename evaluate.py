@@ -14,17 +14,18 @@ completed, truncated, heuristic_steps) and DIR/summary.json (mean, median, std, 
 overlap, time-save factor and steps, completion rate; overall and by map size) and prints one line
 (mean and median overlap, time-save, completion, the heuristic's share of a learned agent's steps).
 Every metric is counted by gridworld's own environment. Policies: the planners of classical_cpp.py
-(greedy, greedy-dead-ends, rollout, boustrophedon, spiral-stc, wavefront, lkh, partition) and the chapter-6
-agent `rainbow` (rainbow_cpp.py; --checkpoint, default models/rainbow_cpp.pt, noise off, heuristic
+(greedy, greedy-dead-ends, greedy-far-first, rollout, boustrophedon, spiral-stc, wavefront, lkh, partition) and the
+chapter-6 agent `rainbow` (rainbow_cpp.py; --checkpoint, default models/rainbow_cpp.pt, noise off, heuristic
 fallback unless --no-heuristic), the chapter-7 agents `marl` (rainbow_marl.py; default
 models/rainbow_marl.pt, decentralised: every agent acts on its own observation; --action-loss,
 --faulty-agent-at), the chapter-5 agent `tabular` (tabular_q.py; --checkpoint, default
 models/tabular_q.npz, greedy, the heuristic at dead ends unless --no-heuristic, --sensor builds
 the heuristic's map), and the exploration baselines, policies of the agent's known map under --sensor,
 --sensor-range and --sensor-failure (one agent): `frontier` (the navigation heuristic: nearest known point
-of interest, else nearest frontier cell, dead-ends-first ties), `frontier-row-major` (row-major ties) and
-`frontier-rollout` (the one-step rollout of `frontier` planned on the known map, unknown cells taken as
-points of interest). With --sensor full they are greedy-dead-ends, greedy and rollout.
+of interest, else nearest frontier cell, dead-ends-first ties), `frontier-row-major` (row-major ties),
+`frontier-far-first` (far-first ties: steps from the start over the known map) and `frontier-rollout` (the
+one-step rollout of `frontier` planned on the known map, unknown cells taken as points of interest). With
+--sensor full they are greedy-dead-ends, greedy, greedy-far-first and rollout.
 
 --compare greedy,lkh runs the same episodes (same maps, same starts) with each listed policy (learned
 ones with their default model) and prints and writes DIR/compare.md and DIR/compare.json: mean overlap,
@@ -61,8 +62,9 @@ import gridworld
 from gridworld import Scenario
 
 LEARNED = ("rainbow", "marl", "tabular")
-# policies of the agent's known map (the heuristic, or its one-step rollout): name -> (dead_ends_first, rollout)
-FRONTIER = {"frontier": (True, False), "frontier-row-major": (False, False), "frontier-rollout": (True, True)}
+# policies of the agent's known map (the heuristic, or its one-step rollout): name -> (dead_ends_first, rollout, far_first)
+FRONTIER = {"frontier": (True, False, False), "frontier-row-major": (False, False, False),
+            "frontier-far-first": (True, False, True), "frontier-rollout": (True, True, False)}
 DEFAULT_CHECKPOINT = {"rainbow": "models/rainbow_cpp.pt", "marl": "models/rainbow_marl.pt",
                       "tabular": "models/tabular_q.npz"}
 COLUMNS = ["map", "size", "n_free", "agents", "start", "steps", "revisits", "overlap", "time_save",
@@ -76,10 +78,10 @@ VIDEO_SECONDS = 30  # long episodes play faster than 10 steps/s so that a video 
 @dataclass
 class Args:
     policy: str = "greedy"
-    """a classical_cpp planner (greedy, greedy-dead-ends, rollout, boustrophedon, spiral-stc, wavefront, lkh,
-    partition), a learned agent (rainbow, marl, tabular) or a policy of the known map under --sensor (frontier:
-    the heuristic with dead-ends-first ties; frontier-row-major: row-major ties; frontier-rollout: its one-step
-    rollout on the known map)"""
+    """a classical_cpp planner (greedy, greedy-dead-ends, greedy-far-first, rollout, boustrophedon, spiral-stc,
+    wavefront, lkh, partition), a learned agent (rainbow, marl, tabular) or a policy of the known map under
+    --sensor (frontier: the heuristic with dead-ends-first ties; frontier-row-major: row-major ties;
+    frontier-far-first: far-first ties; frontier-rollout: its one-step rollout on the known map)"""
     checkpoint: str | None = None
     """weights / table of a learned agent"""
     maps: tuple[str, ...] = ()
@@ -364,7 +366,7 @@ def _frontier(args: Args, policy: str):
         raise ValueError(f"{policy} is single-agent; use --agents 1")
     if args.faulty_agent_at is not None or args.action_loss:
         raise ValueError("--faulty-agent-at and --action-loss need several agents (the marl policy)")
-    dead_ends_first, lookahead = FRONTIER[policy]
+    dead_ends_first, lookahead, far_first = FRONTIER[policy]
 
     def play(part, i, trajectories):
         config = gridworld.EnvConfig(load_state=True, load_random=False, sensor=args.sensor,
@@ -378,8 +380,8 @@ def _frontier(args: Args, policy: str):
         while not done.all():
             action = np.full(core.B, gridworld.WAIT)
             live = np.flatnonzero(~done)
-            action[live] = (core.rollout_actions(live, dead_ends_first, view="known") if lookahead
-                            else core.heuristic_actions(False, dead_ends_first)[live, 0])
+            action[live] = (core.rollout_actions(live, dead_ends_first, view="known", far_first=far_first) if lookahead
+                            else core.heuristic_actions(False, dead_ends_first, far_first)[live, 0])
             ev = core.step(action[:, None])
             steps += ~done
             truncated |= ev["truncated"] & ~done

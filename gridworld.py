@@ -584,6 +584,23 @@ def _flood(passable: np.ndarray, seed: np.ndarray) -> np.ndarray:
         reach = grown
 
 
+def _distance_from(passable: np.ndarray, seed: np.ndarray) -> np.ndarray:
+    """Steps from the nearest `seed` cell to every cell of `passable` (4-connected, -1 where unreachable), for a
+    batch (B, H, W) at once."""
+    dist = np.where(seed & passable, 0, -1)
+    front, d = seed & passable, 0
+    while front.any():
+        grown = front.copy()
+        grown[:, 1:] |= front[:, :-1]
+        grown[:, :-1] |= front[:, 1:]
+        grown[:, :, 1:] |= front[:, :, :-1]
+        grown[:, :, :-1] |= front[:, :, 1:]
+        d += 1
+        front = grown & passable & (dist < 0)
+        dist[front] = d
+    return dist
+
+
 @functools.lru_cache(maxsize=16)
 def _block_mean_table(scales: int, factor: int) -> tuple[np.ndarray, np.ndarray]:
     """The multiscale observation's rounding: table[offsets[s] + n] = round-half-up(255 * n / a) (uint8) for
@@ -955,12 +972,17 @@ class _Walkers:
     given (a few array operations), else by a breadth-first search; the others pick among their neighbours."""
 
     def __init__(self, free: np.ndarray, poi: np.ndarray, cells: np.ndarray, dead_ends_first: bool,
-                 tables: list | None = None):
+                 tables: list | None = None, start: np.ndarray | None = None):
         n, H, W = free.shape
         self.Wp, self.P, self.dead_ends_first = W + 2, (H + 2) * (W + 2), dead_ends_first
         pad = np.zeros((2, n, H + 3, W + 2), bool)  # a spare row: a border cell's neighbours are in the array
         pad[:, :, 1:H + 1, 1:-1] = free, poi
         self.free, self.poi = pad[0].reshape(n, -1), pad[1].reshape(n, -1)
+        self.from_start = None  # far-first (start: the starting cells): each map's steps from them, flat
+        if start is not None:
+            steps = np.zeros((n, H + 3, W + 2), np.int64)
+            steps[:, 1:H + 1, 1:-1] = _distance_from(free, start)
+            self.from_start = steps.reshape(n, -1)
         self.map_of = np.arange(n)
         self.pos = (cells[:, 0] + 1) * self.Wp + cells[:, 1] + 1
         self.remaining = self.poi.sum(1)
@@ -975,10 +997,14 @@ class _Walkers:
         out.poi = self.poi[rows]
         return out
 
-    def _key(self, degree: np.ndarray, cells: np.ndarray) -> np.ndarray:
-        """The heuristic's order among equally near targets: fewer target neighbours first (dead-ends-first),
-        then row-major (the border keeps flat order row-major)."""
-        return degree * self.P + cells if self.dead_ends_first else cells
+    def _key(self, degree: np.ndarray, cells: np.ndarray, maps: np.ndarray) -> np.ndarray:
+        """The heuristic's order among equally near targets of walkers on `maps` (broadcast with cells): fewer
+        target neighbours first (dead-ends-first) minus steps from the start (far-first), then row-major (the
+        border keeps flat order row-major)."""
+        rank = degree + self.P if self.dead_ends_first else np.full(np.shape(cells), self.P)
+        if self.from_start is not None:
+            rank = rank - self.from_start[maps, cells]
+        return rank * self.P + cells
 
     def moves(self) -> np.ndarray:
         """The heuristic's move of every walker (WAIT where no point of interest is reachable)."""
@@ -986,7 +1012,7 @@ class _Walkers:
         near = self.pos[:, None] + self.delta
         target = self.poi[rows[:, None], near]
         degree = self.poi[rows[:, None, None], near[..., None] + self.delta].sum(-1) if self.dead_ends_first else 0
-        key = np.where(target, self._key(degree, near), np.iinfo(np.int64).max)
+        key = np.where(target, self._key(degree, near, self.map_of[:, None]), np.iinfo(np.int64).max)
         move = np.where(target.any(1), key.argmin(1), WAIT)
         far = np.flatnonzero(~target.any(1))
         if len(far):
@@ -1007,7 +1033,8 @@ class _Walkers:
         dist = np.where(poi, dist, np.iinfo(np.int16).max)
         nearest = dist == dist.min(1, keepdims=True)
         degree = _neighbours(poi, Wp) if self.dead_ends_first else 0
-        goal = np.where(nearest & poi, self._key(degree, np.arange(poi.shape[1])), np.iinfo(np.int64).max).argmin(1)
+        key = self._key(degree, np.arange(poi.shape[1]), self.map_of[far, None])
+        goal = np.where(nearest & poi, key, np.iinfo(np.int64).max).argmin(1)
         first = np.array([t[2][r, g] for (t, r), g in zip(rows, goal)], np.int64)
         move = (first[:, None] == self.pos[far, None] + self.delta).argmax(1)
         return np.where(poi.any(1) & (dist.min(1) < np.iinfo(np.int16).max), move, WAIT)
@@ -1032,7 +1059,8 @@ class _Walkers:
             found = np.flatnonzero(hit.any(1))
             if len(found):
                 degree = _neighbours(poi[found], Wp) if self.dead_ends_first else 0
-                key = np.where(hit[found], self._key(degree, np.arange(poi.shape[1])), np.iinfo(np.int64).max)
+                key = self._key(degree, np.arange(poi.shape[1]), self.map_of[far[found], None])
+                key = np.where(hit[found], key, np.iinfo(np.int64).max)
                 goal[found], dist[found] = key.argmin(1), len(layers) - 1
         for i in range(int(dist.max()) - 1, 0, -1):  # walk back from the goal to distance 1
             near = goal[:, None] + self.delta
@@ -1136,12 +1164,13 @@ class GridWorldCore:
         if old is not None:
             oc = self.c
             keep = {k: getattr(self, k)[:, oc:oc + self.H, oc:oc + self.W]
-                    for k in ("obstacle", "covered", "seen", "occupied")}
+                    for k in ("obstacle", "covered", "seen", "occupied", "start")}
         self.H, self.W, self.N, self.c, self.Ph, self.Pw = H, W, N, c, Ph, Pw
         self.obstacle = np.ones((B, Ph, Pw), bool)
         self.seen = np.ones((B, Ph, Pw), bool)
         self.covered = np.zeros((B, Ph, Pw), bool)
         self.occupied = np.zeros((B, Ph, Pw), bool)
+        self.start = np.zeros((B, Ph, Pw), bool)  # the agents' starting cells: the far-first heuristic's origin
         for k, v in keep.items():
             getattr(self, k)[:, c:c + v.shape[1], c:c + v.shape[2]] = v
         self.canvas = np.zeros((B, Ph, Pw, 4), np.uint8)
@@ -1362,6 +1391,8 @@ class GridWorldCore:
             covered[np.flatnonzero(none_left), cell[:, 0], cell[:, 1]] = False
         inner = (w, slice(c, c + H), slice(c, c + W))
         self.obstacle[inner], self.covered[inner], self.occupied[inner] = obstacle, covered, start_mask
+        self.start[w] = False
+        self.start[inner] = start_mask
         self.seen[inner] = cfg.sensor == "full"
         self.seen[inner] |= ~((np.arange(H)[:, None] < hw[:, None, None, 0]) &
                               (np.arange(W) < hw[:, None, None, 1]))  # out of map: known obstacle
@@ -1517,7 +1548,7 @@ class GridWorldCore:
             r = (r / (self.hw[:, 0:1] * self.hw[:, 1:2])).astype(np.float32)
         return r if self.all_active else np.where(self.active, r, np.float32(0))
 
-    WORLD_ARRAYS = ("obstacle", "seen", "covered", "occupied", "canvas", "pos", "active", "last_action",
+    WORLD_ARRAYS = ("obstacle", "seen", "covered", "occupied", "start", "canvas", "pos", "active", "last_action",
                     "frozen", "hw", "battery", "budget", "steps", "new_cells", "agent_moves", "n_poi_start",
                     "n_free", "remaining")  # every per-world array (leading axis B): copy_worlds copies them all
 
@@ -1769,7 +1800,8 @@ class GridWorldCore:
         return np.where(blocked[..., 0], -1, run).astype(np.int8)
 
     # --- the navigation heuristic -------------------------------------------------------
-    def heuristic_actions(self, random_ties: bool = True, dead_ends_first: bool = False) -> np.ndarray:
+    def heuristic_actions(self, random_ties: bool = True, dead_ends_first: bool = False,
+                          far_first: bool = False) -> np.ndarray:
         """One step along a shortest path to the nearest known point of interest for every
         agent at once, (B, N). With several agents, targets are claimed greedily by distance
         (the nearest agent-target pair first, the lower index on a tie), so no two agents chase
@@ -1781,7 +1813,11 @@ class GridWorldCore:
         ones). An agent left without a target waits (WAIT). With dead_ends_first, equally near
         targets with fewer target neighbours come first (Warnsdorff's rule): a cell that would
         be left behind as an isolated hole is covered now, which halves greedy's overlap
-        (README); the row-major or random order then breaks the remaining ties."""
+        (README). With far_first, equally near targets farther from the agents' starting cells
+        (steps over the known passable cells) come first, so the walk sweeps away from the start
+        and ends near it, as the wavefront planner's does; with both, the fewest (target
+        neighbours - steps from the start) first. The row-major or random order then breaks the
+        remaining ties."""
         B, N, H, W, c = self.B, self.N, self.H, self.W, self.c
         inner = (slice(None), slice(c, c + H), slice(c, c + W))
         seen = self.seen[inner]
@@ -1822,14 +1858,20 @@ class GridWorldCore:
         k, bit = np.nonzero(bits)
         l, m, cell = l[k], m[k], y[k] * W + word[k] * 64 + bit
         tie = self.rng.random(len(l)) if random_ties else cell / (H * W)
-        if dead_ends_first:  # 4-neighbours that are targets too, 0-4, ahead of the tie in [0, 1)
+        rank = np.zeros(len(l), np.int64)  # the order among equally near targets, ahead of the tie in [0, 1)
+        if dead_ends_first:  # 4-neighbours that are targets too, 0-4
             t = _unpack(targets, W).astype(np.int8)
             degree = np.zeros_like(t)
             degree[:, 1:] += t[:, :-1]
             degree[:, :-1] += t[:, 1:]
             degree[:, :, 1:] += t[:, :, :-1]
             degree[:, :, :-1] += t[:, :, 1:]
-            tie = (degree.reshape(B, H * W)[m // N, cell] + tie) / 5
+            rank += degree.reshape(B, H * W)[m // N, cell]
+        if far_first:
+            from_start = _distance_from(_unpack(passable, W), self.start[inner])
+            rank -= from_start.reshape(B, H * W)[m // N, cell]
+        if len(rank):  # squeezed into [0, 1): the distance stays the first key
+            tie = (rank - rank.min() + tie) / (rank.max() - rank.min() + 1)
         order = np.lexsort((l + tie, m))
         l, m, cell = l[order], m[order], cell[order]
         rank = np.arange(len(m)) - np.searchsorted(m, m)
@@ -1868,7 +1910,7 @@ class GridWorldCore:
         return move.reshape(B, N)
 
     def rollout_actions(self, worlds=None, dead_ends_first: bool = True, max_steps: int | None = None,
-                        view: str = "full", costs: bool = False):
+                        view: str = "full", costs: bool = False, far_first: bool = False):
         """The one-step rollout (Bertsekas) of the deterministic heuristic (random_ties=False; greedy-dead-ends
         by default) for one agent, batched: in each given world (all by default; a bool mask or indices) try
         each move, finish each try with the heuristic and take the move with the fewest total steps (the
@@ -1884,7 +1926,8 @@ class GridWorldCore:
         kept. A finished world, or one whose agent is absent or frozen, gets the heuristic's move (WAIT). This
         core is not changed (nor its random stream). With costs=True every try runs on to its end and it also
         returns (len(worlds), 4) steps to cover the map after each first move, that move included (max_steps
-        where the heuristic cannot finish, -1 for a move not tried: blocked, or a world's only move)."""
+        where the heuristic cannot finish, -1 for a move not tried: blocked, or a world's only move). With
+        far_first the heuristic (the base and the tries) takes far-first ties (heuristic_actions)."""
         if self.N != 1:
             raise ValueError(f"rollout_actions plans for one agent, the worlds have {self.N}")
         if view not in ("full", "known"):
@@ -1902,7 +1945,8 @@ class GridWorldCore:
             covered = covered & ~unknown
         agent = self.active[w, 0] & ~self.frozen[w, 0]
         cells = np.where(agent[:, None], self.agent_cells()[w, 0], 0)  # an absent agent is parked off the map
-        walkers = _Walkers(free, free & ~covered, cells, dead_ends_first)
+        start = self.start[inner] if far_first else None
+        walkers = _Walkers(free, free & ~covered, cells, dead_ends_first, start=start)
         if view == "full":  # the map of an episode does not change: its tables serve every later call
             walkers.tables = self._path_tables_of(walkers.free, walkers.Wp)
         base = walkers.moves()  # the heuristic's own move on the state planned on
@@ -1990,7 +2034,8 @@ class GridWorldCore:
         w = np.asarray(worlds)
         return np.flatnonzero(w) if w.dtype == bool else w.astype(np.int64).ravel()
 
-    def team_rollout_actions(self, worlds=None, dead_ends_first: bool = True, max_steps: int | None = None) -> np.ndarray:
+    def team_rollout_actions(self, worlds=None, dead_ends_first: bool = True, max_steps: int | None = None,
+                             far_first: bool = False) -> np.ndarray:
         """The multiagent rollout (Bertsekas 2020, "Multiagent rollout algorithms and reinforcement learning") of the
         deterministic heuristic with claims (random_ties=False; greedy-dead-ends by default), batched: in each given
         world (all by default; a bool mask or indices) the agents choose in index order, agent i trying each of its
@@ -2009,7 +2054,7 @@ class GridWorldCore:
         moves), and a world decides when its first try finishes (the others need more steps) or the incumbent's step
         count is reached. After max_steps steps (default 4 * H * W: a heuristic that cannot finish) agent i keeps the
         heuristic's move. Absent and frozen agents get WAIT, finished worlds the heuristic's moves. This core is not
-        changed (nor its random stream)."""
+        changed (nor its random stream). With far_first the heuristic takes far-first ties (heuristic_actions)."""
         w = self._world_indices(worlds)
         n, N = len(w), self.N
         K = 4 if N == 1 else 5  # WAIT only lets another agent by
@@ -2020,7 +2065,7 @@ class GridWorldCore:
         probe = self._scratch(n)
         probe.copy_worlds(w, np.arange(n), source=self)
         probe.seen[inner] = True  # the full state (outside the map is obstacle)
-        chosen = probe.heuristic_actions(False, dead_ends_first)  # agents < i: chosen; agents >= i: the heuristic's
+        chosen = probe.heuristic_actions(False, dead_ends_first, far_first)  # agents < i: chosen; agents >= i: the heuristic's
         working = self.active[w] & ~self.frozen[w]
         n_work = np.maximum(working.sum(1), 1)[:, None]
         live = self.remaining[w] > 0
@@ -2066,7 +2111,7 @@ class GridWorldCore:
                 scratch, owner, alive = self._compacted(scratch, owner, alive)
                 scratch.frozen[:] = self.frozen[w[owner // K]] | ~alive[:, None]  # stopped tries are skipped
                 scratch.any_frozen = True
-                scratch.step(scratch.heuristic_actions(False, dead_ends_first))
+                scratch.step(scratch.heuristic_actions(False, dead_ends_first, far_first))
         return chosen
 
     # --- rendering ----------------------------------------------------------------------

@@ -192,6 +192,11 @@ class Args:
     """of equally near targets the heuristic takes the one with the fewest uncovered neighbours
     first (Warnsdorff's rule, not in the dissertation): half greedy's overlap on cpp_eval, so a
     better teacher and fallback; --no-heuristic-dead-ends for the dissertation's heuristic"""
+    heuristic_far_first: bool = False
+    """of equally near targets the heuristic takes those farthest from the start first (greedy-far-first in
+    classical_cpp; with dead-ends, the fewest target neighbours minus steps from the start): the walk sweeps away
+    from the start and ends near it, as the wavefront planner's does. Hint, fallback, teacher and rollout labels
+    all use it, and the export records it (far_first) so evaluation gives the network the same hint"""
     teacher: str = "heuristic"
     """the expert that acts under §6.4.2.4's imitation conditions (demonstrations included) and labels replayed
     states for --margin-loss: heuristic (the navigation heuristic, as set by the two flags above), rollout (the
@@ -286,6 +291,7 @@ class QNetwork(nn.Module):
     def __init__(self, frames: int, view: int, hidden: int, sigma0: float, hint: bool = False):
         super().__init__()
         self.frames, self.view, self.hidden, self.hint = frames, view, hidden, hint
+        self.far_first = False  # the hint's heuristic takes far-first ties (build_network sets it from the spec)
         self.conv = nn.Sequential(
             nn.Conv2d(CHANNELS * frames, 32, 3, 1, 1), nn.ReLU(),
             nn.Conv2d(32, 64, 3, 2), nn.ReLU(),
@@ -300,9 +306,9 @@ class QNetwork(nn.Module):
 
     def network(self) -> dict:
         """What a saved copy needs to be rebuilt and fed: network kind, frames, hidden width, view, extras,
-        observation kind, whether it takes the heuristic's move (hint)."""
+        observation kind, whether it takes the heuristic's move (hint) and with which ties (far_first)."""
         return {"network": "fig6.8", "frames": self.frames, "hidden": self.hidden, "view": self.view,
-                "extras": EXTRAS, "observation": "deep", "hint": self.hint}
+                "extras": EXTRAS, "observation": "deep", "hint": self.hint, "far_first": self.far_first}
 
     def reset_noise(self, on: bool = True):
         for m in self.modules():
@@ -325,6 +331,7 @@ class CompactQNetwork(nn.Module):
                  scale_view: int = COMPACT["scale_view"], hint: bool = False):
         super().__init__()
         self.frames, self.hidden, self.conv_width, self.hint = frames, hidden, conv_width, hint
+        self.far_first = False  # the hint's heuristic takes far-first ties (build_network sets it from the spec)
         self.scales, self.scale_factor, self.scale_view = scales, scale_factor, scale_view
         self.view = scale_view
         channels, _ = frame_shape({"observation": "multiscale", "scales": scales, "scale_factor": scale_factor,
@@ -348,7 +355,8 @@ class CompactQNetwork(nn.Module):
         multiscale settings)."""
         return {"network": "compact", "frames": self.frames, "hidden": self.hidden, "conv_width": self.conv_width,
                 "view": self.view, "extras": EXTRAS, "observation": "multiscale", "scales": self.scales,
-                "scale_factor": self.scale_factor, "scale_view": self.scale_view, "hint": self.hint}
+                "scale_factor": self.scale_factor, "scale_view": self.scale_view, "hint": self.hint,
+                "far_first": self.far_first}
 
     def reset_noise(self, on: bool = True):
         for m in self.modules():
@@ -376,9 +384,12 @@ def dueling(x: torch.Tensor, value: nn.ModuleList, advantage: nn.ModuleList) -> 
 def build_network(spec: dict, sigma0: float) -> nn.Module:
     """The network a spec describes (network_of's, or a network() record): Fig. 6.8's or the compact one."""
     if spec.get("network", "fig6.8") == "fig6.8":
-        return QNetwork(spec["frames"], spec["view"], spec["hidden"], sigma0, bool(spec.get("hint")))
-    return CompactQNetwork(spec["frames"], spec["hidden"], sigma0, spec["conv_width"],
-                           *(spec[k] for k in SCALE_KEYS), bool(spec.get("hint")))
+        q = QNetwork(spec["frames"], spec["view"], spec["hidden"], sigma0, bool(spec.get("hint")))
+    else:
+        q = CompactQNetwork(spec["frames"], spec["hidden"], sigma0, spec["conv_width"],
+                            *(spec[k] for k in SCALE_KEYS), bool(spec.get("hint")))
+    q.far_first = bool(spec.get("far_first"))
+    return q
 
 
 def observation_settings(spec: dict) -> dict:
@@ -640,13 +651,14 @@ class Stacker:
         return self.maps.reshape(n, -1, *self.maps.shape[-2:]), np.concatenate(extras, 1)
 
 
-def observe(core: gridworld.GridWorldCore, hint: bool = False, dead_ends_first: bool = True) -> dict:
+def observe(core: gridworld.GridWorldCore, hint: bool = False, dead_ends_first: bool = True,
+            far_first: bool = False) -> dict:
     """Every agent's observation, agent-major per world: stream b * N + i is agent i of world b; with `hint`
     also "hint", the deterministic heuristic's move of each agent (its known map, with claims: what the agent
     itself could compute, so no privileged input)."""
     obs = {k: v.reshape(-1, *v.shape[2:]) for k, v in core.observe().items()}
     if hint:
-        obs["hint"] = core.heuristic_actions(False, dead_ends_first).reshape(-1)
+        obs["hint"] = core.heuristic_actions(False, dead_ends_first, far_first).reshape(-1)
     return obs
 
 
@@ -819,13 +831,15 @@ def network_of(blob: dict, path: str) -> dict:
         raise ValueError(f"{path}: a {kind!r} network; the trainers build {' and '.join(NETWORKS)}")
     spec = {"network": kind, "frames": blob.get("frames", flags.get("frame_stack")),
             "hidden": blob.get("hidden", flags.get("hidden")), "extras": blob.get("extras", EXTRAS),
-            "hint": bool(blob.get("hint", flags.get("hint", False)))}
+            "hint": bool(blob.get("hint", flags.get("hint", False))),
+            "far_first": bool(blob.get("far_first", flags.get("heuristic_far_first", False)))}
     if kind == "compact":
         spec |= {k: blob.get(k, flags.get(k)) for k in ("conv_width", *SCALE_KEYS)}
         spec |= {"view": blob.get("view", spec["scale_view"]), "observation": blob.get("observation", "multiscale")}
     else:
         spec |= {"view": blob.get("view", VIEW), "observation": blob.get("observation", "deep")}
-    if not all(isinstance(v, int) and v >= 1 for k, v in spec.items() if k not in ("network", "observation", "hint")):
+    if not all(isinstance(v, int) and v >= 1 for k, v in spec.items()
+               if k not in ("network", "observation", "hint", "far_first")):
         raise ValueError(f"{path}: not a rainbow_cpp / rainbow_marl model (no frame count or hidden width)")
     expected = ("deep", VIEW) if kind == "fig6.8" else ("multiscale", spec["scale_view"])
     if (spec["observation"], spec["view"], spec["extras"]) != (*expected, EXTRAS):
@@ -1016,7 +1030,7 @@ def start_run(args: Args, n_stages: int) -> tuple:
         args = with_network(args, None if warm is None else network_of(warm, args.init_from), args.init_from)
     args = replace(args, run_name=run_name, export=args.export or os.path.join(run_dir, f"{SCRIPT}.pt"))
     device = torch.device("cuda" if args.cuda and torch.cuda.is_available() else "cpu")
-    spec = {**asdict(args), "frames": args.frame_stack, "view": VIEW}
+    spec = {**asdict(args), "frames": args.frame_stack, "view": VIEW, "far_first": args.heuristic_far_first}
     q, target = (build_network(spec, args.sigma0).to(device) for _ in range(2))
     optimizer = torch.optim.Adam(q.parameters(), lr=args.learning_rate, eps=args.adam_eps,
                                  fused=True)  # fused: ~7x faster than the per-tensor loop on CPU
@@ -1106,9 +1120,10 @@ def rollout_labels(core: gridworld.GridWorldCore, label: np.ndarray, teach: np.n
     w = np.flatnonzero(need)
     label = label.copy()
     if args.teacher == "policy-rollout":
-        label[w] = policy_rollout_actions(core, w, policy, stack, args.heuristic_dead_ends)
+        label[w] = policy_rollout_actions(core, w, policy, stack, args.heuristic_dead_ends, args.heuristic_far_first)
     else:
-        label[w] = core.rollout_actions(w, args.heuristic_dead_ends, view=args.teacher_view)
+        label[w] = core.rollout_actions(w, args.heuristic_dead_ends, view=args.teacher_view,
+                                        far_first=args.heuristic_far_first)
     return label, w
 
 
@@ -1116,12 +1131,13 @@ class Fallback:
     """§6.5.2.1's heuristic fallback for single-agent worlds: once an agent is stuck (§6.4.2.4's conditions 3-4) the
     deterministic heuristic keeps control for as many new cells as the agent has been stuck in its episode."""
 
-    def __init__(self, core: gridworld.GridWorldCore, random_ties: bool = False, dead_ends_first: bool = True):
+    def __init__(self, core: gridworld.GridWorldCore, random_ties: bool = False, dead_ends_first: bool = True,
+                 far_first: bool = False):
         n = core.B
         self.since_new, self.times_stuck = np.zeros(n, np.int64), np.zeros(n, np.int64)
         self.owed = np.zeros(n, np.int64)  # new cells left to the heuristic
         self.history = [core.agent_cells()[:, 0]] * 6  # cells at t-5 .. t
-        self.random_ties, self.dead_ends_first = random_ties, dead_ends_first
+        self.random_ties, self.dead_ends_first, self.far_first = random_ties, dead_ends_first, far_first
 
     def act(self, core: gridworld.GridWorldCore, action: np.ndarray, done: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The actions with the heuristic's where it has control, and where it has."""
@@ -1131,7 +1147,8 @@ class Fallback:
         self.owed = np.where(now_stuck, self.times_stuck, self.owed)
         fallback = (self.owed > 0) & ~done
         if fallback.any():
-            action = np.where(fallback, core.heuristic_actions(self.random_ties, self.dead_ends_first)[:, 0], action)
+            heuristic_moves = core.heuristic_actions(self.random_ties, self.dead_ends_first, self.far_first)[:, 0]
+            action = np.where(fallback, heuristic_moves, action)
         return action, fallback
 
     def stepped(self, core: gridworld.GridWorldCore, new: np.ndarray) -> None:
@@ -1147,7 +1164,7 @@ class Fallback:
 
 
 def policy_rollout_actions(core: gridworld.GridWorldCore, worlds: np.ndarray, policy: nn.Module, stack: Stacker,
-                           dead_ends_first: bool = True) -> np.ndarray:
+                           dead_ends_first: bool = True, far_first: bool = False) -> np.ndarray:
     """--teacher policy-rollout: the one-step rollout (Bertsekas) whose base is the greedy `policy` (noise off) with the
     heuristic fallback, for the given worlds (indices): each legal move is tried in a copy of the world (copy_worlds),
     the copies go on with the policy in lockstep from the world's frame stack, and the move whose copy covers every
@@ -1177,11 +1194,11 @@ def policy_rollout_actions(core: gridworld.GridWorldCore, worlds: np.ndarray, po
     copies.copy_worlds(worlds[owner // K], np.arange(len(owner)), source=core)
     sub = Stacker(len(owner), stack.maps.shape[1], stack.maps.shape[-1], stack.maps.shape[2], stack.hint is not None)
     sub.maps, sub.extra, sub.battery = (a[worlds[owner // K]].copy() for a in (stack.maps, stack.extra, stack.battery))
-    fallback = Fallback(copies, False, dead_ends_first)
+    fallback = Fallback(copies, False, dead_ends_first, far_first)
     ev = copies.step((owner % K)[:, None])
     fallback.stepped(copies, ev["new"][:, 0])
     hint = stack.hint is not None
-    sub.push(observe(copies, hint, dead_ends_first), np.zeros(len(owner), bool))
+    sub.push(observe(copies, hint, dead_ends_first, far_first), np.zeros(len(owner), bool))
     limit = 4 * core.H * core.W
     for _ in range(limit):
         done = np.zeros(n * K, bool)
@@ -1208,7 +1225,7 @@ def policy_rollout_actions(core: gridworld.GridWorldCore, worlds: np.ndarray, po
         action, _ = fallback.act(copies, action, ~keep)
         ev = copies.step(np.where(keep, action, gridworld.WAIT)[:, None])
         fallback.stepped(copies, ev["new"][:, 0])
-        sub.push(observe(copies, hint, dead_ends_first), np.zeros(len(owner), bool))
+        sub.push(observe(copies, hint, dead_ends_first, far_first), np.zeros(len(owner), bool))
     return out
 
 
@@ -1252,19 +1269,19 @@ def evaluate_policy(q: QNetwork, scenarios: list, frames: int, sensor: str = "fu
     given as `trajectories` is extended with one (T + 1, 1, 2) int array per scenario: the agent's
     (row, col) at every step from the start, T that episode's own steps. The observation and the frame
     count are the network's own (q.network(), on its device); `frames` counts only for a network without
-    that record."""
+    that record. The hint and the fallback take far-first ties where the network was trained so (its far_first)."""
     spec = q.network() if hasattr(q, "network") else {"frames": frames}
     observation, frames, device = observation_settings(spec), spec["frames"], device_of(q)
     core = gridworld.GridWorldCore(eval_config(scenarios, sensor, sensor_range, sensor_failure, observation),
                                    len(scenarios))
     core.configure(scenarios=scenarios)
     core.reset()
-    n, hint = len(scenarios), bool(spec.get("hint"))
+    n, hint, far_first = len(scenarios), bool(spec.get("hint")), bool(spec.get("far_first"))
     stack = Stacker(n, frames, *frame_shape(observation)[::-1], hint=hint)
-    stack.push(observe(core, hint, dead_ends_first), np.ones(n, bool))
+    stack.push(observe(core, hint, dead_ends_first, far_first), np.ones(n, bool))
     done, truncated, used = np.zeros(n, bool), np.zeros(n, bool), np.zeros(n, np.int64)
     steps = np.zeros(n, np.int64)  # each world's own, not counting the waits after its end
-    fallback = Fallback(core, random_ties, dead_ends_first)
+    fallback = Fallback(core, random_ties, dead_ends_first, far_first)
     cells = [core.agent_cells()]
     q.reset_noise(False)
     with torch.no_grad():
@@ -1283,7 +1300,7 @@ def evaluate_policy(q: QNetwork, scenarios: list, frames: int, sensor: str = "fu
                 cells.append(core.agent_cells())
             truncated |= ev["truncated"] & ~done
             done |= ev["terminated"] | ev["truncated"]
-            stack.push(observe(core, hint, dead_ends_first), np.zeros(n, bool))
+            stack.push(observe(core, hint, dead_ends_first, far_first), np.zeros(n, bool))
     q.reset_noise(True)
     if trajectories is not None:
         trajectories.extend(world_paths(cells, steps, core.active))
@@ -1324,7 +1341,7 @@ def main(args: Args) -> None:
     # TRY NOT TO MODIFY: start the game
     every = np.arange(B)
     core.reset()
-    obs = observe(core, args.hint, args.heuristic_dead_ends)
+    obs = observe(core, args.hint, args.heuristic_dead_ends, args.heuristic_far_first)
     stack = Stacker(B, args.frame_stack, view, channels, args.hint)
     stack.push(obs, np.ones(B, bool))
     slot = replay.add_frames(every, obs, np.zeros(B, np.int64), np.zeros(B, bool))
@@ -1368,7 +1385,8 @@ def main(args: Args) -> None:
         label = None
         if teach.any() or labelled(args):  # the hint is this heuristic's move when ties are not random
             label = (obs["hint"] if args.hint and not args.heuristic_random_ties else
-                     core.heuristic_actions(args.heuristic_random_ties, args.heuristic_dead_ends)[:, 0])
+                     core.heuristic_actions(args.heuristic_random_ties, args.heuristic_dead_ends,
+                                            args.heuristic_far_first)[:, 0])
         if args.teacher != "heuristic" and label is not None:
             tick = time.perf_counter()
             heuristic_label, (label, w) = label, rollout_labels(core, label, teach, args, rng, policy, stack)
@@ -1395,7 +1413,7 @@ def main(args: Args) -> None:
         ended = terminated | (truncated & ~args.partial_reset)
 
         # TRY NOT TO MODIFY: save data to replay buffer; handle final_observation
-        obs = observe(core, args.hint, args.heuristic_dead_ends)
+        obs = observe(core, args.hint, args.heuristic_dead_ends, args.heuristic_far_first)
         slot = replay.add_frames(every, obs, age + 1, ended)
         age += 1
         if ended.any():
@@ -1418,7 +1436,7 @@ def main(args: Args) -> None:
             core.reset(fresh)
             for i, s in zip(w, core.snapshot(w)):
                 starts[i] = s
-            obs = observe(core, args.hint, args.heuristic_dead_ends)
+            obs = observe(core, args.hint, args.heuristic_dead_ends, args.heuristic_far_first)
             slot[w] = replay.add_frames(w, {k: v[w] for k, v in obs.items()}, np.zeros(len(w), np.int64),
                                         np.zeros(len(w), bool))
             age[w] = since_new[w] = returns[w] = 0

@@ -204,6 +204,11 @@ class Args:
     """of equally near targets the heuristic takes the one with the fewest uncovered neighbours
     first (Warnsdorff's rule, not in the dissertation; a better teacher and fallback);
     --no-heuristic-dead-ends for the dissertation's heuristic"""
+    heuristic_far_first: bool = False
+    """of equally near targets the heuristic takes those farthest from the start first (greedy-far-first in
+    classical_cpp; with dead-ends, the fewest target neighbours minus steps from the start): the walk sweeps away
+    from the start and ends near it, as the wavefront planner's does. Hint, fallback, teacher and rollout labels
+    all use it, and the export records it (far_first) so evaluation gives the network the same hint"""
     eval_every: int = 25_000
     """environment steps between evaluations on held-out marl_eval maps (0: none)"""
     eval_maps: int = 32
@@ -279,6 +284,7 @@ class QNetwork(nn.Module):
     def __init__(self, frames: int, view: int, hidden: int, sigma0: float, hint: bool = False):
         super().__init__()
         self.frames, self.view, self.hidden, self.hint = frames, view, hidden, hint
+        self.far_first = False  # the hint's heuristic takes far-first ties (build_network sets it from the spec)
         self.conv = nn.Sequential(
             nn.Conv2d(CHANNELS * frames, 32, 3, 1, 1), nn.ReLU(),
             nn.Conv2d(32, 64, 3, 2), nn.ReLU(),
@@ -293,9 +299,9 @@ class QNetwork(nn.Module):
 
     def network(self) -> dict:
         """What a saved copy needs to be rebuilt and fed: network kind, frames, hidden width, view, extras,
-        observation kind, whether it takes the heuristic's move (hint)."""
+        observation kind, whether it takes the heuristic's move (hint) and with which ties (far_first)."""
         return {"network": "fig6.8", "frames": self.frames, "hidden": self.hidden, "view": self.view,
-                "extras": EXTRAS, "observation": "deep", "hint": self.hint}
+                "extras": EXTRAS, "observation": "deep", "hint": self.hint, "far_first": self.far_first}
 
     def reset_noise(self, on: bool = True):
         for m in self.modules():
@@ -318,6 +324,7 @@ class CompactQNetwork(nn.Module):
                  scale_view: int = COMPACT["scale_view"], hint: bool = False):
         super().__init__()
         self.frames, self.hidden, self.conv_width, self.hint = frames, hidden, conv_width, hint
+        self.far_first = False  # the hint's heuristic takes far-first ties (build_network sets it from the spec)
         self.scales, self.scale_factor, self.scale_view = scales, scale_factor, scale_view
         self.view = scale_view
         channels, _ = frame_shape({"observation": "multiscale", "scales": scales, "scale_factor": scale_factor,
@@ -341,7 +348,8 @@ class CompactQNetwork(nn.Module):
         multiscale settings)."""
         return {"network": "compact", "frames": self.frames, "hidden": self.hidden, "conv_width": self.conv_width,
                 "view": self.view, "extras": EXTRAS, "observation": "multiscale", "scales": self.scales,
-                "scale_factor": self.scale_factor, "scale_view": self.scale_view, "hint": self.hint}
+                "scale_factor": self.scale_factor, "scale_view": self.scale_view, "hint": self.hint,
+                "far_first": self.far_first}
 
     def reset_noise(self, on: bool = True):
         for m in self.modules():
@@ -369,9 +377,12 @@ def dueling(x: torch.Tensor, value: nn.ModuleList, advantage: nn.ModuleList) -> 
 def build_network(spec: dict, sigma0: float) -> nn.Module:
     """The network a spec describes (network_of's, or a network() record): Fig. 6.8's or the compact one."""
     if spec.get("network", "fig6.8") == "fig6.8":
-        return QNetwork(spec["frames"], spec["view"], spec["hidden"], sigma0, bool(spec.get("hint")))
-    return CompactQNetwork(spec["frames"], spec["hidden"], sigma0, spec["conv_width"],
-                           *(spec[k] for k in SCALE_KEYS), bool(spec.get("hint")))
+        q = QNetwork(spec["frames"], spec["view"], spec["hidden"], sigma0, bool(spec.get("hint")))
+    else:
+        q = CompactQNetwork(spec["frames"], spec["hidden"], sigma0, spec["conv_width"],
+                            *(spec[k] for k in SCALE_KEYS), bool(spec.get("hint")))
+    q.far_first = bool(spec.get("far_first"))
+    return q
 
 
 def observation_settings(spec: dict) -> dict:
@@ -633,13 +644,14 @@ class Stacker:
         return self.maps.reshape(n, -1, *self.maps.shape[-2:]), np.concatenate(extras, 1)
 
 
-def observe(core: gridworld.GridWorldCore, hint: bool = False, dead_ends_first: bool = True) -> dict:
+def observe(core: gridworld.GridWorldCore, hint: bool = False, dead_ends_first: bool = True,
+            far_first: bool = False) -> dict:
     """Every agent's observation, agent-major per world: stream b * N + i is agent i of world b; with `hint`
     also "hint", the deterministic heuristic's move of each agent (its known map, with claims: what the agent
     itself could compute, so no privileged input)."""
     obs = {k: v.reshape(-1, *v.shape[2:]) for k, v in core.observe().items()}
     if hint:
-        obs["hint"] = core.heuristic_actions(False, dead_ends_first).reshape(-1)
+        obs["hint"] = core.heuristic_actions(False, dead_ends_first, far_first).reshape(-1)
     return obs
 
 
@@ -812,13 +824,15 @@ def network_of(blob: dict, path: str) -> dict:
         raise ValueError(f"{path}: a {kind!r} network; the trainers build {' and '.join(NETWORKS)}")
     spec = {"network": kind, "frames": blob.get("frames", flags.get("frame_stack")),
             "hidden": blob.get("hidden", flags.get("hidden")), "extras": blob.get("extras", EXTRAS),
-            "hint": bool(blob.get("hint", flags.get("hint", False)))}
+            "hint": bool(blob.get("hint", flags.get("hint", False))),
+            "far_first": bool(blob.get("far_first", flags.get("heuristic_far_first", False)))}
     if kind == "compact":
         spec |= {k: blob.get(k, flags.get(k)) for k in ("conv_width", *SCALE_KEYS)}
         spec |= {"view": blob.get("view", spec["scale_view"]), "observation": blob.get("observation", "multiscale")}
     else:
         spec |= {"view": blob.get("view", VIEW), "observation": blob.get("observation", "deep")}
-    if not all(isinstance(v, int) and v >= 1 for k, v in spec.items() if k not in ("network", "observation", "hint")):
+    if not all(isinstance(v, int) and v >= 1 for k, v in spec.items()
+               if k not in ("network", "observation", "hint", "far_first")):
         raise ValueError(f"{path}: not a rainbow_cpp / rainbow_marl model (no frame count or hidden width)")
     expected = ("deep", VIEW) if kind == "fig6.8" else ("multiscale", spec["scale_view"])
     if (spec["observation"], spec["view"], spec["extras"]) != (*expected, EXTRAS):
@@ -1009,7 +1023,7 @@ def start_run(args: Args, n_stages: int) -> tuple:
         args = with_network(args, None if warm is None else network_of(warm, args.init_from), args.init_from)
     args = replace(args, run_name=run_name, export=args.export or os.path.join(run_dir, f"{SCRIPT}.pt"))
     device = torch.device("cuda" if args.cuda and torch.cuda.is_available() else "cpu")
-    spec = {**asdict(args), "frames": args.frame_stack, "view": VIEW}
+    spec = {**asdict(args), "frames": args.frame_stack, "view": VIEW, "far_first": args.heuristic_far_first}
     q, target = (build_network(spec, args.sigma0).to(device) for _ in range(2))
     optimizer = torch.optim.Adam(q.parameters(), lr=args.learning_rate, eps=args.adam_eps,
                                  fused=True)  # fused: ~7x faster than the per-tensor loop on CPU
@@ -1092,7 +1106,7 @@ def team_rollout_labels(core: gridworld.GridWorldCore, label: np.ndarray, teach:
     need = teach.any(1) | (labelled(args) & (rng.random(len(teach)) < args.label_fraction))
     w = np.flatnonzero(need)
     label = label.copy()
-    label[w] = core.team_rollout_actions(w, args.heuristic_dead_ends)
+    label[w] = core.team_rollout_actions(w, args.heuristic_dead_ends, far_first=args.heuristic_far_first)
     return label, w
 
 
@@ -1150,9 +1164,9 @@ def evaluate_policy(q: QNetwork, scenarios: list, frames: int, sensor: str = "fu
     core.reset()
     B, N = core.B, core.N
     rng = np.random.default_rng(seed)
-    hint = bool(spec.get("hint"))
+    hint, far_first = bool(spec.get("hint")), bool(spec.get("far_first"))
     stack = Stacker(B * N, frames, *frame_shape(observation)[::-1], hint=hint)
-    stack.push(observe(core, hint, dead_ends_first), np.ones(B * N, bool))
+    stack.push(observe(core, hint, dead_ends_first, far_first), np.ones(B * N, bool))
     done, truncated, faulty, walled_off = (np.zeros(B, bool) for _ in range(4))
     since_new, times_stuck, owed = (np.zeros((B, N), np.int64) for _ in range(3))
     steps, used = np.zeros(B, np.int64), np.zeros(B, np.int64)  # each world's own, not the waits after its end
@@ -1175,7 +1189,8 @@ def evaluate_policy(q: QNetwork, scenarios: list, frames: int, sensor: str = "fu
                 endgame = (core.remaining <= working.sum(1))[:, None]
                 fallback = ((owed > 0) | endgame) & working
                 if fallback.any():
-                    action = np.where(fallback, core.heuristic_actions(random_ties, dead_ends_first), action)
+                    heuristic_moves = core.heuristic_actions(random_ties, dead_ends_first, far_first)
+                    action = np.where(fallback, heuristic_moves, action)
                 used += fallback.sum(1)
             if action_loss:
                 action = np.where(rng.random((B, N)) < action_loss, gridworld.WAIT, action)
@@ -1193,7 +1208,7 @@ def evaluate_policy(q: QNetwork, scenarios: list, frames: int, sensor: str = "fu
                 core.freeze(due, core.active[due].sum(1) - 1)
                 faulty[due] = True
                 walled_off[due] = core.unreachable_poi(due) > 0
-            stack.push(observe(core, hint, dead_ends_first), np.zeros(B * N, bool))
+            stack.push(observe(core, hint, dead_ends_first, far_first), np.zeros(B * N, bool))
     q.reset_noise(True)
     if trajectories is not None:
         trajectories.extend(world_paths(cells, steps, core.active))
@@ -1256,7 +1271,7 @@ def main(args: Args) -> None:
                       f"{replay.bytes_per_transition()} bytes per transition, "
                       f"{replay.bytes_per_transition() * args.buffer_size / 2**30:.2f} GiB for {args.buffer_size:,}")
             core.reset()
-            obs = observe(core, args.hint, args.heuristic_dead_ends)
+            obs = observe(core, args.hint, args.heuristic_dead_ends, args.heuristic_far_first)
             stack = Stacker(S, args.frame_stack, view, channels, args.hint)
             stack.push(obs, np.ones(S, bool))
             slot = np.zeros(S, np.int64)
@@ -1286,7 +1301,8 @@ def main(args: Args) -> None:
         label = None
         if teach.any() or labelled(args):  # the hint is this heuristic's move when ties are not random
             label = (obs["hint"] if args.hint and not args.heuristic_random_ties else
-                     core.heuristic_actions(args.heuristic_random_ties, args.heuristic_dead_ends).ravel())
+                     core.heuristic_actions(args.heuristic_random_ties, args.heuristic_dead_ends,
+                                            args.heuristic_far_first).ravel())
         if args.teacher == "rollout" and label is not None:
             tick = time.perf_counter()
             label, w = team_rollout_labels(core, label.reshape(B, N), teach.reshape(B, N), args, rng)
@@ -1313,7 +1329,7 @@ def main(args: Args) -> None:
         ended = terminated | (truncated & ~args.partial_reset)
 
         # TRY NOT TO MODIFY: save data to replay buffer; handle final_observation
-        obs = observe(core, args.hint, args.heuristic_dead_ends)
+        obs = observe(core, args.hint, args.heuristic_dead_ends, args.heuristic_far_first)
         slot[live] = replay.add_frames(live, pick(obs, live), np.repeat(age + 1, N)[live], np.repeat(ended, N)[live])
         age += 1
         restart = np.zeros(S, bool)
@@ -1337,7 +1353,7 @@ def main(args: Args) -> None:
             core.reset(fresh)
             for i, s in zip(w, core.snapshot(w)):
                 starts[i] = s
-            obs = observe(core, args.hint, args.heuristic_dead_ends)
+            obs = observe(core, args.hint, args.heuristic_dead_ends, args.heuristic_far_first)
             restart = np.zeros((B, N), bool)
             restart[w] = True
             restart = restart.ravel()

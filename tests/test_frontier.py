@@ -86,7 +86,7 @@ def test_at_range_1_dead_ends_first_counts_only_known_neighbours():
 def test_with_the_full_sensor_frontier_is_greedy_dead_ends_and_frontier_rollout_is_rollout():
     episodes = random_maps(12, seed=1)
     for policy, planner in (("frontier", "greedy-dead-ends"), ("frontier-row-major", "greedy"),
-                            ("frontier-rollout", "rollout")):
+                            ("frontier-far-first", "greedy-far-first"), ("frontier-rollout", "rollout")):
         mine, theirs = run(policy, episodes), evaluate.run_planner(planner, episodes)
         assert [(r["steps"], r["overlap"]) for r in mine] == [(r["steps"], r["overlap"]) for r in theirs], policy
 

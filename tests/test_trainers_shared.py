@@ -49,7 +49,8 @@ SHARED = [
 # the Args fields that the shared code reads, equal in both (flag, default and docstring)
 SHARED_FLAGS = ["exp_name", "seed", "run_name", "threads", "cuda", "torch_deterministic", "compile", "amp", "quiet",
                 "capture_video", "network", "conv_width", "scales", "scale_factor", "scale_view", "margin_loss_end",
-                "margin_decay_steps", "hint", "departure_weight", "time_limit", "td_weight"]
+                "margin_decay_steps", "hint", "departure_weight", "time_limit", "td_weight",
+                "heuristic_far_first"]
 
 
 def definitions(source: str) -> dict[str, str]:
@@ -141,7 +142,7 @@ def test_observation_constants_come_from_gridworld(name):
     assert q.value[0].n_in == 64 * 9 * 9 + 1 + 2 * 13  # conv features, battery, 13 extras per frame
     assert q.conv[0].in_channels // 4 == q.frames == 2  # evaluate.py reads the frame count either way
     assert q.network() == {"network": "fig6.8", "frames": 2, "hidden": 16, "view": 41, "extras": 13,
-                           "observation": "deep", "hint": False}
+                           "observation": "deep", "hint": False, "far_first": False}
     assert t.QNetwork(2, t.VIEW, 16, 0.5, hint=True).value[0].n_in == 64 * 9 * 9 + 1 + 2 * 13 + 5  # + the hint one-hot
 
 

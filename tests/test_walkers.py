@@ -26,11 +26,11 @@ def mid_episode(family: str, size: int, seed: int, worlds: int = 12) -> gw.GridW
     return core
 
 
-def walkers_of(core: gw.GridWorldCore, dead_ends_first: bool, tables: bool) -> gw._Walkers:
+def walkers_of(core: gw.GridWorldCore, dead_ends_first: bool, tables: bool, far_first: bool = False) -> gw._Walkers:
     c, H, W = core.c, core.H, core.W
     free = ~core.obstacle[:, c:c + H, c:c + W]
     walkers = gw._Walkers(free, free & ~core.covered[:, c:c + H, c:c + W], core.agent_cells()[:, 0],
-                          dead_ends_first)
+                          dead_ends_first, start=core.start[:, c:c + H, c:c + W] if far_first else None)
     if tables:
         walkers.tables = [gw._path_tables(m, walkers.Wp) for m in walkers.free]
     return walkers
@@ -38,25 +38,27 @@ def walkers_of(core: gw.GridWorldCore, dead_ends_first: bool, tables: bool) -> g
 
 @pytest.mark.parametrize("family", gw.MAP_FAMILIES[:-1])
 @pytest.mark.parametrize("dead_ends_first", [True, False])
-def test_walkers_move_as_the_heuristic(family, dead_ends_first):
+@pytest.mark.parametrize("far_first", [False, True])
+def test_walkers_move_as_the_heuristic(family, dead_ends_first, far_first):
     for seed in range(3):
         core = mid_episode(family, 16, seed)
-        want = core.heuristic_actions(False, dead_ends_first)[:, 0]
+        want = core.heuristic_actions(False, dead_ends_first, far_first)[:, 0]
         unfinished = core.remaining > 0
         for tables in (False, True):
-            got = walkers_of(core, dead_ends_first, tables).moves()
+            got = walkers_of(core, dead_ends_first, tables, far_first).moves()
             assert got[unfinished].tolist() == want[unfinished].tolist()
 
 
-def test_walkers_follow_the_heuristic_to_the_end():
+@pytest.mark.parametrize("far_first", [False, True])
+def test_walkers_follow_the_heuristic_to_the_end(far_first):
     """Stepped together, walkers and the environment cover the same cells in the same steps."""
     core = mid_episode("rooms", 14, 7, worlds=6)
-    walkers = walkers_of(core, True, True)
+    walkers = walkers_of(core, True, True, far_first)
     for _ in range(4 * 14 * 14):
         live = core.remaining > 0
         if not live.any():
             break
-        move = core.heuristic_actions(False, True)[:, 0]
+        move = core.heuristic_actions(False, True, far_first)[:, 0]
         assert walkers.moves()[live].tolist() == move[live].tolist()
         core.step(move[:, None])
         step = walkers.take(np.flatnonzero(live))

@@ -1,0 +1,103 @@
+"""The far-first heuristic (GridWorldCore.heuristic_actions(far_first=True), classical_cpp's greedy-far-first).
+
+Among the nearest points of interest it takes the one with the fewest (target neighbours - steps from the start)
+with dead-ends-first, the most steps from the start without it, then the first in row-major order. Checked against
+a plain breadth-first reference on part-walked maps: the next cell the heuristic covers is the reference's choice.
+The rollout's walkers take the same moves (tests/test_walkers.py).
+"""
+from __future__ import annotations
+
+from collections import deque
+
+import numpy as np
+import pytest
+
+import classical_cpp as cc
+import gridworld as gw
+
+
+def steps_from(free: np.ndarray, cells: list[tuple[int, int]]) -> np.ndarray:
+    """Breadth-first steps from the nearest of `cells` over `free` (-1 where unreachable), one cell at a time."""
+    dist = np.full(free.shape, -1)
+    queue = deque(cells)
+    for c in cells:
+        dist[c] = 0
+    while queue:
+        y, x = queue.popleft()
+        for dy, dx in ((-1, 0), (1, 0), (0, -1), (0, 1)):
+            ny, nx = y + dy, x + dx
+            if 0 <= ny < free.shape[0] and 0 <= nx < free.shape[1] and free[ny, nx] and dist[ny, nx] < 0:
+                dist[ny, nx] = dist[y, x] + 1
+                queue.append((ny, nx))
+    return dist
+
+
+def reference_goal(free, target, agent, start, dead_ends_first: bool) -> tuple[int, int]:
+    from_agent, from_start = steps_from(free, [agent]), steps_from(free, [start])
+    reach = target & (from_agent >= 0)
+    nearest = reach & (from_agent == from_agent[reach].min())
+    best = None
+    for y, x in zip(*np.nonzero(nearest)):  # row-major
+        degree = sum(target[y + dy, x + dx] for dy, dx in ((-1, 0), (1, 0), (0, -1), (0, 1))
+                     if 0 <= y + dy < free.shape[0] and 0 <= x + dx < free.shape[1])
+        key = (degree if dead_ends_first else 0) - from_start[y, x]
+        if best is None or key < best[0]:
+            best = (key, (int(y), int(x)))
+    return best[1]
+
+
+@pytest.mark.parametrize("family", ["rooms", "maze", "clutter"])
+@pytest.mark.parametrize("dead_ends_first", [True, False])
+def test_far_first_covers_the_reference_goal_next(family, dead_ends_first):
+    core = gw.GridWorldCore(gw.EnvConfig(size=12, map_family=family, number_obstacles=14, obstacles_random=True,
+                                         battery_factor=1e6), 6, seed=3)
+    core.reset()
+    c, H, W = core.c, core.H, core.W
+    start = [tuple(int(v) for v in core.agent_cells()[b, 0]) for b in range(core.B)]
+    rng = np.random.default_rng(0)
+    for _ in range(15):  # part-walk by random moves so the agents are away from their starts
+        core.step(rng.integers(0, 4, (core.B, 1)))
+    checked = 0
+    for _ in range(40):
+        free, covered = ~core.obstacle[:, c:c + H, c:c + W], core.covered[:, c:c + H, c:c + W].copy()
+        live = core.remaining > 0
+        want = [reference_goal(free[b], free[b] & ~covered[b], tuple(core.agent_cells()[b, 0]), start[b],
+                               dead_ends_first) if live[b] else None for b in range(core.B)]
+        got = [None] * core.B
+        for _ in range(2 * H * W):  # follow the heuristic until each world covers a new cell
+            before = core.covered[:, c:c + H, c:c + W].copy()
+            core.step(np.where(live, core.heuristic_actions(False, dead_ends_first, far_first=True)[:, 0], gw.WAIT)[:, None])
+            new = core.covered[:, c:c + H, c:c + W] & ~before
+            for b in np.flatnonzero(new.any((1, 2)) & live):
+                got[b] = tuple(int(v) for v in np.argwhere(new[b])[0]) if got[b] is None else got[b]
+            if all(g is not None for g, ok in zip(got, live) if ok):
+                break
+        assert got == want
+        checked += int(live.sum())
+    assert checked > 100
+
+
+def test_far_first_sweeps_away_from_the_start_by_hand():
+    """A 3x3 room entered at the top-left corner and walked to the middle of the right side ((0, 0) -> (0, 2)
+    -> (1, 2)): the nearest points of interest are W (1, 1) and S (2, 2), one step away. (1, 1) comes first
+    row-major and has more target neighbours (2 against 1); (2, 2) is farther from the start (4 steps against 2).
+    Row-major greedy goes W; far-first goes S, with or without dead-ends."""
+    covered = np.zeros((3, 3), bool)
+    covered[0, :] = True
+    s = gw.Scenario(np.zeros((3, 3), bool), np.array([[0, 0]]), covered)
+    moves = {}
+    for dead_ends_first, far_first in ((False, False), (False, True), (True, True)):
+        core = gw.GridWorldCore(gw.EnvConfig(load_state=True, battery_factor=1e6), 1)
+        core.configure(scenarios=[s])
+        core.reset()
+        for a in (3, 3, 1):  # E, E, S
+            core.step(np.array([[a]]))
+        assert core.agent_cells()[0, 0].tolist() == [1, 2]
+        moves[dead_ends_first, far_first] = int(core.heuristic_actions(False, dead_ends_first, far_first)[0, 0])
+    assert moves == {(False, False): 2, (False, True): 1, (True, True): 1}  # W = 2, S = 1
+
+
+def test_greedy_far_first_planner_covers_every_map():
+    scenarios = gw.generate_scenarios(8, seed=5, size=10, map_family="rooms")
+    for s, paths in zip(scenarios, cc.plan("greedy-far-first", scenarios)):
+        assert cc.replay(s, paths)["completed"]
