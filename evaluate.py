@@ -113,6 +113,8 @@ class Args:
     """rainbow, marl: the fallback heuristic takes the nearest cell with the fewest uncovered
     neighbours first (as the shipped models were taught); --no-heuristic-dead-ends: the
     dissertation's nearest-cell heuristic"""
+    rollout_base: str = "greedy-dead-ends"
+    """the rollout planner's base policy: greedy-dead-ends, greedy or greedy-far-first"""
     limit: int = 0
     """evaluate only the first LIMIT scenarios (0: all)"""
     min_size: int = 0
@@ -161,6 +163,8 @@ def _check_counts(args: Args) -> None:
             raise ValueError(f"{flag} must be >= {least}, got {value}")
     if args.max_size and args.max_size < max(args.min_size, 2):
         raise ValueError(f"--max-size must be 0 (no bound) or >= 2 and >= --min-size, got {args.max_size}")
+    if args.rollout_base not in classical_cpp.ROLLOUT_BASES:
+        raise ValueError(f"--rollout-base {args.rollout_base!r}: choose from {', '.join(classical_cpp.ROLLOUT_BASES)}")
 
 
 def read_starts(path: str, names: list[str]) -> dict[str, np.ndarray]:
@@ -254,29 +258,32 @@ def _rows(part: list[tuple[str, Scenario]], m: dict) -> list[dict]:
     return [_row(name, s, {k: v[j].item() for k, v in m.items()}) for j, (name, s) in enumerate(part)]
 
 
-def run_planner(policy: str, episodes: list[tuple[str, Scenario]], trajectories: list | None = None) -> list[dict]:
+def run_planner(policy: str, episodes: list[tuple[str, Scenario]], trajectories: list | None = None,
+                rollout_base: str = "greedy-dead-ends") -> list[dict]:
     """Plan and replay every episode; one row per episode. `trajectories`, if given, is extended with each
     episode's per-agent (T_i+1, 2) paths of (row, col) cells."""
-    paths = classical_cpp.plan(policy, [s for _, s in episodes])
+    paths = classical_cpp.plan(policy, [s for _, s in episodes], rollout_base)
     if trajectories is not None:
         trajectories.extend(paths)
     return [_row(name, s, classical_cpp.replay(s, p)) for (name, s), p in zip(episodes, paths)]
 
 
 def _run_chunk(job):
-    policy, chunk, record = job
+    policy, chunk, record, rollout_base = job
     trajectories = [] if record else None
-    return run_planner(policy, chunk, trajectories), trajectories
+    return run_planner(policy, chunk, trajectories, rollout_base), trajectories
 
 
 def _plan_rows(args: Args, policy: str, episodes: list[tuple[str, Scenario]], paths: dict | None) -> list[dict]:
     """A planner on every episode, in --workers processes, the rows in the episodes' order."""
     if args.workers == 1:  # greedy plans a slice at once, the others map by map
         return _sliced(episodes, 64 if policy in classical_cpp.BATCHED else 1,
-                       lambda part, i, trajectories: run_planner(policy, part, trajectories), policy, args.quiet, paths)
+                       lambda part, i, trajectories: run_planner(policy, part, trajectories, args.rollout_base), policy,
+                       args.quiet, paths)
     k = -(-len(episodes) // args.workers)  # contiguous chunks, so the rows keep the episodes' order
     with ProcessPoolExecutor(args.workers) as pool:
-        jobs = {i: pool.submit(_run_chunk, (policy, episodes[i:i + k], any(i <= j < i + k for j in paths or ())))
+        jobs = {i: pool.submit(_run_chunk, (policy, episodes[i:i + k], any(i <= j < i + k for j in paths or ()),
+                                            args.rollout_base))
                 for i in range(0, len(episodes), k)}
 
         def collect(part, i, trajectories):

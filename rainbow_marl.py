@@ -739,7 +739,7 @@ def eval_config(scenarios: list, sensor: str = "full", sensor_range: int = 3, se
 
 
 def heuristic_baseline(config: gridworld.EnvConfig, scenarios: list, random_ties: bool,
-                       dead_ends_first: bool) -> dict:
+                       dead_ends_first: bool, far_first: bool = False) -> dict:
     """The navigation heuristic alone (targets claimed among agents) once on each scenario: the yardstick
     printed beside every evaluation. Per-episode arrays: gridworld's metrics, each world's own steps."""
     core = gridworld.GridWorldCore(config, len(scenarios))
@@ -747,7 +747,8 @@ def heuristic_baseline(config: gridworld.EnvConfig, scenarios: list, random_ties
     core.reset()
     done, steps = np.zeros(core.B, bool), np.zeros(core.B, np.int64)
     while not done.all():
-        ev = core.step(np.where(done[:, None], gridworld.WAIT, core.heuristic_actions(random_ties, dead_ends_first)))
+        heuristic_moves = core.heuristic_actions(random_ties, dead_ends_first, far_first)
+        ev = core.step(np.where(done[:, None], gridworld.WAIT, heuristic_moves))
         steps += ~done
         done |= ev["terminated"] | ev["truncated"]
     m = core.metrics()
@@ -1400,7 +1401,7 @@ def main(args: Args) -> None:
             pool = pool[::max(1, len(pool) // args.eval_maps)][:args.eval_maps]
             if stage_index not in yardstick:
                 yardstick[stage_index] = heuristic_baseline(eval_config(pool), pool, args.heuristic_random_ties,
-                                                            args.heuristic_dead_ends)
+                                                            args.heuristic_dead_ends, args.heuristic_far_first)
             paths = [] if args.capture_video else None
             m = evaluate_policy(q, pool, args.frame_stack, random_ties=args.heuristic_random_ties,
                                 dead_ends_first=args.heuristic_dead_ends, trajectories=paths)

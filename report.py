@@ -224,7 +224,7 @@ def rainbow_results(per_size: int, p2p_maps: int, model: str, quiet: bool = Fals
                 for z, g in out.items()}
 
     result = {"per_size": per_size, "camera_range": CAMERA_RANGE, "model": _model_json(model)}
-    with _bar(8, "rainbow_cpp", quiet) as bar:
+    with _bar(9, "rainbow_cpp", quiet) as bar:
         for key, kw in (("full", {}), ("full_no_heuristic", {"heuristic": False}),
                         (f"camera_r{CAMERA_RANGE}", {"sensor": "camera", "sensor_range": CAMERA_RANGE})):
             result[key] = by_size(evaluate.run_rainbow(evaluate.Args(policy="rainbow", checkpoint=model, quiet=quiet, **kw),
@@ -233,6 +233,11 @@ def rainbow_results(per_size: int, p2p_maps: int, model: str, quiet: bool = Fals
         result["greedy"] = by_size(evaluate.run_planner("greedy", episodes))
         bar.update()
         result["greedy_dead_ends"] = by_size(evaluate.run_planner("greedy-dead-ends", episodes))
+        bar.update()
+        result["greedy_far_first"] = by_size(evaluate.run_planner("greedy-far-first", episodes))
+        result["greedy_far_first_external"] = {}
+        for row in evaluate.run_planner("greedy-far-first", classical_cpp.external_episodes()):
+            result["greedy_far_first_external"].setdefault(row["map"], []).append(row["overlap"])
         bar.update()
         p2p = evaluate.scenarios_from(evaluate.Args(dataset=os.path.join(ROOT, "maps", "p2p_eval.npz"), limit=p2p_maps))
         shortest = [r["steps"] for r in evaluate.run_planner("greedy", p2p)]  # one target: greedy walks a shortest path
@@ -252,6 +257,9 @@ def rainbow_results(per_size: int, p2p_maps: int, model: str, quiet: bool = Fals
                                     [(f"structured_eval.npz[{f}]", s) for s, f in zip(scenarios, families)])
         result["structured_eval"] = {f: family_stats([r for r, g in zip(rows, families) if g == f])
                                      for f in dict.fromkeys(families)} | {"all": family_stats(rows)}
+        rows = evaluate.run_planner("greedy-far-first", [(f"structured_eval.npz[{f}]", s) for s, f in zip(scenarios, families)])
+        result["greedy_far_first_structured"] = {f: family_stats([r for r, g in zip(rows, families) if g == f])
+                                                 for f in dict.fromkeys(families)} | {"all": family_stats(rows)}
         bar.update()
     return result
 
@@ -689,6 +697,7 @@ def rainbow_lines(rb: dict, c: dict) -> tuple[list[str], list[str], list[str]]:
     sizes = sorted(rb["full"], key=int)
     ext = c["external"]
     m = rb["model"]
+    far = int("greedy_far_first" in rb)  # the far-first heuristic's columns, where it was measured
     wall = _wall(m)
     first, last = REFERENCE["rainbow_cpp_sizes"]
     target = [z for z in sizes if first <= int(z) <= last]
@@ -712,26 +721,30 @@ def rainbow_lines(rb: dict, c: dict) -> tuple[list[str], list[str], list[str]]:
         f"`cpp_eval`, the first {rb['per_size']} maps of each size, mean overlap and "
         "completion; heuristic share = fraction of steps the fallback took.", "",
         table(["size", "rainbow + heuristic", "completed", "heuristic share", "rainbow alone (completed maps)",
-               "completed", "greedy planner", "greedy-dead-ends planner"],
+               "completed", "greedy planner", "greedy-dead-ends planner"] + ["greedy-far-first planner"] * far,
               [[z, f"{rb['full'][z]['overlap']:.3f}", f"{100 * rb['full'][z]['completion']:.0f}%",
                 f"{rb['full'][z]['heuristic_share']:.2f}", f"{rb['full_no_heuristic'][z]['overlap_completed']:.3f}",
                 f"{100 * rb['full_no_heuristic'][z]['completion']:.0f}%", f"{rb['greedy'][z]['overlap']:.3f}",
-                f"{rb['greedy_dead_ends'][z]['overlap']:.3f}"]
+                f"{rb['greedy_dead_ends'][z]['overlap']:.3f}"] + ([f"{rb['greedy_far_first'][z]['overlap']:.3f}"] if far else [])
                for z in sizes]), "",
         f"![rainbow overlap by size]({FIGURES['rainbow_cpp']})", "",
         f"MovingAI maps, mean overlap over the {'/'.join(map(str, starts))} reference starts:", "",
-        table(["map", "rainbow + heuristic"] + [p for p in MOVINGAI_PLANNERS if p in next(iter(ext.values()))],
-              [[name, f"{np.mean(v):.3f}"] + [f"{np.mean(ext[name][p]):.3f}" for p in MOVINGAI_PLANNERS if p in ext[name]]
+        table(["map", "rainbow + heuristic"] + ["greedy-far-first"] * far
+              + [p for p in MOVINGAI_PLANNERS if p in next(iter(ext.values()))],
+              [[name, f"{np.mean(v):.3f}"] + ([f"{np.mean(rb['greedy_far_first_external'][name]):.3f}"] if far else [])
+               + [f"{np.mean(ext[name][p]):.3f}" for p in MOVINGAI_PLANNERS if p in ext[name]]
                for name, v in rb["external"].items()])]
     st = c.get("structured_eval")
     if "structured_eval" in rb and st is not None:
         names = [p for p in ("greedy-dead-ends", "wavefront", "rollout", "lkh") if p in st["planners"]]
         full += ["", f"`structured_eval`, the planners' {st['per_band']} maps per family and size band (the section "
                  "below), mean overlap:", "",
-                 table(["family", "rainbow + heuristic", "completed", "heuristic share"] + names,
+                 table(["family", "rainbow + heuristic", "completed", "heuristic share"] + ["greedy-far-first"] * far
+                       + names,
                        [[f, f"**{rb['structured_eval'][f]['overlap']:.3f}**",
                          f"{100 * rb['structured_eval'][f]['completion']:.0f}%",
                          f"{rb['structured_eval'][f]['heuristic_share']:.2f}"]
+                        + ([f"{rb['greedy_far_first_structured'][f]['overlap']:.3f}"] if far else [])
                         + [f"{st['planners'][p][f]['overlap']:.3f}" for p in names] for f in rb["structured_eval"]])]
     r = rb.get("camera_range", CAMERA_RANGE)
     camera = rb[f"camera_r{r}"]
@@ -932,7 +945,12 @@ def headline(results: dict) -> list[str]:
                      f"{float(np.mean([np.mean(v) for v in rb['external'].values()])):.3f}"]
                     + ([] if st is None else [f"{rb['structured_eval']['all']['overlap']:.3f}"
                                               if "structured_eval" in rb else "—"]))
-        rows.append(["greedy-dead-ends (its teacher)", f"{cpp('greedy_dead_ends'):.3f}", "—"]
+        far_first = bool(rb["model"].get("args", {}).get("heuristic_far_first"))
+        if "greedy_far_first" in rb:  # the far-first heuristic, measured beside the model
+            rows.append([f"greedy-far-first{' (its teacher)' if far_first else ''}", f"{cpp('greedy_far_first'):.3f}",
+                         f"{float(np.mean([np.mean(v) for v in rb['greedy_far_first_external'].values()])):.3f}"]
+                        + ([] if st is None else [f"{rb['greedy_far_first_structured']['all']['overlap']:.3f}"]))
+        rows.append([f"greedy-dead-ends{'' if far_first else ' (its teacher)'}", f"{cpp('greedy_dead_ends'):.3f}", "—"]
                     + ([] if st is None else [structured("greedy-dead-ends")]))
     names = ["greedy", "wavefront", "boustrophedon", "spiral-stc", "lkh"]
     if st is not None and "rollout" in c["cpp_eval"]:

@@ -18,13 +18,13 @@ def from_rows(rows: list[str]) -> gw.Scenario:
 
 @pytest.fixture
 def heuristic_ties(monkeypatch) -> list:
-    """The dead_ends_first argument of every GridWorldCore.heuristic_actions call, in order."""
+    """The (dead_ends_first, far_first) arguments of every GridWorldCore.heuristic_actions call, in order."""
     seen = []
     original = gw.GridWorldCore.heuristic_actions
 
-    def recording(self, random_ties=True, dead_ends_first=False):
-        seen.append(dead_ends_first)
-        return original(self, random_ties, dead_ends_first)
+    def recording(self, random_ties=True, dead_ends_first=False, far_first=False):
+        seen.append((dead_ends_first, far_first))
+        return original(self, random_ties, dead_ends_first, far_first)
 
     monkeypatch.setattr(gw.GridWorldCore, "heuristic_actions", recording)
     return seen

@@ -123,7 +123,7 @@ def test_compact_network_shapes(settings, frames):
     assert maps.shape == (3, channels * frames, view, view) and extras.shape == (3, 1 + frames * rc.EXTRAS)
     assert q(maps, extras).shape == (3, rc.MOVES)
     assert q.network() == {"network": "compact", "frames": frames, "hidden": 16, "conv_width": 8, "view": view,
-                           "extras": rc.EXTRAS, **observation, "hint": False}
+                           "extras": rc.EXTRAS, **observation, "hint": False, "far_first": False}
     assert rc.observation_settings(q.network()) == observation
 
 
@@ -201,7 +201,7 @@ def test_a_compact_run_trains_exports_and_resumes(name, tmp_path, monkeypatch, r
     run = tmp_path / "runs" / "c"
     info = json.loads((run / f"{name}.json").read_text())
     want = {"network": "compact", "frames": 3, "hidden": 16, "conv_width": 8, "view": 7, "extras": 13,
-            **multiscale(2, 3, 7), "hint": False}
+            **multiscale(2, 3, 7), "hint": False, "far_first": False}
     assert info["network"] == want and info["global_step"] == 64 and info["provenance"]["device"] == "cpu"
     assert info["args"]["network"] == "compact" and info["args"]["threads"] == 0
     q = t.load_policy(str(run / f"{name}.pt"))

@@ -77,6 +77,8 @@ BAD = {  # name: (Args keywords from the files folder, part of the message)
     "unknown sensor": (lambda d: dict(maps=room(d), policy="rainbow", sensor="sonar"), "--sensor must be one of"),
     "sensor range 0": (lambda d: dict(maps=room(d), policy="rainbow", sensor_range=0), "--sensor-range must be >= 1"),
     "max size 1": (lambda d: dict(maps=room(d), max_size=1), "--max-size must be 0"),
+    "unknown rollout base": (lambda d: dict(maps=room(d), policy="rollout", rollout_base="astar"),
+                             "--rollout-base 'astar': choose from"),
     "min size negative": (lambda d: dict(maps=room(d), min_size=-1), "--min-size must be >= 0"),
     "more agents than cells": (lambda d: dict(maps=room(d), agents=11), "11 free cells for 11 agents"),
     "no agents": (lambda d: dict(maps=room(d), agents=0), "--agents must be >= 1"),

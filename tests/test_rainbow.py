@@ -874,14 +874,15 @@ def test_evaluate_policy_counts_each_worlds_own_steps():
     assert both["rho"][0] == pytest.approx(alone["steps"][0] / 16)
 
 
-@pytest.mark.parametrize("dead_ends", [True, False])
+@pytest.mark.parametrize("dead_ends, far_first", [(True, False), (False, False), (True, True)])
 def test_teacher_and_fallback_use_the_dead_ends_flag(tmp_path, monkeypatch, restore_sigint, heuristic_ties,
-                                                     dead_ends):
-    """Every heuristic call of training and of its evaluations breaks ties as --heuristic-dead-ends says."""
+                                                     dead_ends, far_first):
+    """Every heuristic call of training and of its evaluations breaks ties as --heuristic-dead-ends and
+    --heuristic-far-first say."""
     monkeypatch.chdir(tmp_path)
     rc.main(small_args(tmp_path, total_steps=300, learning_starts=100, save_every=0, eval_every=200,
-                       margin_loss=1.0, heuristic_dead_ends=dead_ends))
-    assert len(heuristic_ties) > 50 and set(heuristic_ties) == {dead_ends}
+                       margin_loss=1.0, heuristic_dead_ends=dead_ends, heuristic_far_first=far_first))
+    assert len(heuristic_ties) > 50 and set(heuristic_ties) == {(dead_ends, far_first)}
 
 
 # ============================================================================ 7. drifts fixed
