@@ -1868,8 +1868,7 @@ class GridWorldCore:
             degree[:, :, :-1] += t[:, :, 1:]
             rank += degree.reshape(B, H * W)[m // N, cell]
         if far_first:
-            from_start = _distance_from(_unpack(passable, W), self.start[inner])
-            rank -= from_start.reshape(B, H * W)[m // N, cell]
+            rank -= self._steps_from_start(passable).reshape(B, H * W)[m // N, cell]
         if len(rank):  # squeezed into [0, 1): the distance stays the first key
             tie = (rank - rank.min() + tie) / (rank.max() - rank.min() + 1)
         order = np.lexsort((l + tie, m))
@@ -1908,6 +1907,20 @@ class GridWorldCore:
         has_goal = dist > 0
         move = FIRST_STEP[np.where(has_goal, gy - yx[:, 0], 0) + 1, np.where(has_goal, gx - yx[:, 1], 0) + 1]
         return move.reshape(B, N)
+
+    def _steps_from_start(self, passable: np.ndarray) -> np.ndarray:
+        """Steps from the agents' starting cells over the passable cells (bitboards, (B, H, words)), (B, H, W); a
+        world's are kept until its passable cells or starts change (with full information: once an episode)."""
+        c, H, W = self.c, self.H, self.W
+        key = np.concatenate([passable, _pack(self.start[:, c:c + H, c:c + W])], 1).reshape(self.B, -1)
+        old_key, steps = getattr(self, "_from_start", (None, None))
+        stale = np.ones(self.B, bool) if old_key is None or old_key.shape != key.shape else (old_key != key).any(1)
+        if stale.any():
+            fresh = _distance_from(_unpack(passable[stale], W), self.start[stale, c:c + H, c:c + W])
+            steps = fresh if stale.all() else np.where(stale[:, None, None], 0, steps)
+            steps[stale] = fresh
+            self._from_start = (key, steps)
+        return steps
 
     def rollout_actions(self, worlds=None, dead_ends_first: bool = True, max_steps: int | None = None,
                         view: str = "full", costs: bool = False, far_first: bool = False):
