@@ -1810,7 +1810,8 @@ class GridWorldCore:
         reinforced random walk), or with random_ties=False by the first target in row-major
         order and the first move in N, S, W, E order. Paths use known free cells; a world with
         no known point of interest targets its frontier (known free cells next to unseen
-        ones). An agent left without a target waits (WAIT). With dead_ends_first, equally near
+        ones), and so does an agent that reaches no known point of interest over known cells
+        (a camera sees through walls). An agent left without a target waits (WAIT). With dead_ends_first, equally near
         targets with fewer target neighbours come first (Warnsdorff's rule): a cell that would
         be left behind as an isolated hole is covered now, which halves greedy's overlap
         (README). With far_first, equally near targets farther from the agents' starting cells
@@ -1818,18 +1819,39 @@ class GridWorldCore:
         and ends near it, as the wavefront planner's does; with both, the fewest (target
         neighbours - steps from the start) first. The row-major or random order then breaks the
         remaining ties."""
-        B, N, H, W, c = self.B, self.N, self.H, self.W, self.c
+        B, H, W, c = self.B, self.H, self.W, self.c
         inner = (slice(None), slice(c, c + H), slice(c, c + W))
         seen = self.seen[inner]
         passable = seen & ~self.obstacle[inner]
         if self.any_frozen:  # a frozen agent never moves off its cell: a path through it would wait forever (§7.5.3.3)
             passable &= ~self._agent_cells_mask(np.arange(B), self.active & self.frozen)
         passable, targets = _pack(np.stack([passable, passable & ~self.covered[inner]]))
+        known = np.bitwise_count(targets).sum((1, 2)) > 0
+        frontier = None if known.all() else self._frontier(passable, seen)
+        if frontier is not None:
+            targets = np.where(known[:, None, None], targets, frontier)
+        move, stuck = self._moves_toward(passable, targets, random_ties, dead_ends_first, far_first)
+        stuck &= known[:, None]
+        if stuck.any():  # a camera sees through walls: the known points of interest may lie past unseen cells only
+            frontier = self._frontier(passable, seen) if frontier is None else frontier
+            stuck &= (np.bitwise_count(frontier).sum((1, 2)) > 0)[:, None]
+        if stuck.any():
+            targets = np.where(stuck.any(1)[:, None, None], targets | frontier, targets)
+            move = np.where(stuck, self._moves_toward(passable, targets, random_ties, dead_ends_first, far_first)[0],
+                            move)
+        return move
+
+    def _frontier(self, passable: np.ndarray, seen: np.ndarray) -> np.ndarray:
+        """Known passable cells next to unseen ones, other than those agents stand on (bitboards, (B, H, words))."""
+        c, H, W = self.c, self.H, self.W
+        return passable & _dilate(~_pack(seen)) & ~_pack(self.occupied[:, c:c + H, c:c + W])
+
+    def _moves_toward(self, passable: np.ndarray, targets: np.ndarray, random_ties: bool, dead_ends_first: bool,
+                      far_first: bool) -> tuple[np.ndarray, np.ndarray]:
+        """heuristic_actions' search over bitboards (B, H, words): the first move of every agent, (B, N), and
+        whether each agent is working and reaches no target, (B, N)."""
+        B, N, H, W = self.B, self.N, self.H, self.W
         n_targets = np.bitwise_count(targets).sum((1, 2), dtype=np.int64)
-        if (n_targets == 0).any():  # frontier cells, other than those agents stand on
-            frontier = passable & _dilate(~_pack(seen)) & ~_pack(self.occupied[inner])
-            targets[n_targets == 0] = frontier[n_targets == 0]
-            n_targets = np.bitwise_count(targets).sum((1, 2), dtype=np.int64)
         M, rows = B * N, np.arange(B * N)
         yx = self.agent_cells().reshape(M, 2)
         working = self.active & ~self.frozen
@@ -1906,7 +1928,7 @@ class GridWorldCore:
             gx = np.where(walk, nx[rows, pick], gx)
         has_goal = dist > 0
         move = FIRST_STEP[np.where(has_goal, gy - yx[:, 0], 0) + 1, np.where(has_goal, gx - yx[:, 1], 0) + 1]
-        return move.reshape(B, N)
+        return move.reshape(B, N), ((found == 0) & working.ravel()).reshape(B, N)
 
     def _steps_from_start(self, passable: np.ndarray) -> np.ndarray:
         """Steps from the agents' starting cells over the passable cells (bitboards, (B, H, words)), (B, H, W); a

@@ -68,6 +68,26 @@ def test_pre_covered_corridor_sends_the_agent_to_its_nearest_frontier(tmp_path, 
     assert json.loads((tmp_path / "out" / "summary.json").read_text())["all"]["steps"]["mean"] == 4.0
 
 
+@pytest.mark.parametrize("policy", ["frontier", "frontier-row-major", "frontier-far-first"])
+def test_a_point_of_interest_seen_through_a_wall_does_not_stop_the_agent(tmp_path, policy):
+    """5x5, agent at (0, 1), camera K=2 (through walls): it knows rows 0-2, columns 0-3. The only known point of
+    interest, (2, 3), is walled in on its known sides; its way in, (2, 4) or (3, 3), is unseen. Waiting for a path to
+    it would wait until truncation: the heuristic heads for the frontier instead. The nearest frontier cells are (0, 3)
+    and (2, 1), two steps away; (0, 3) has no target neighbour and comes first in row-major order: EAST. Then the
+    agent finds the way in and covers both points of interest."""
+    path = tmp_path / "pocket.txt"
+    path.write_text("x0xxx\nxx##x\nxx#..\nxxx#x\nxxxxx\n")
+    paths = {0: None}
+    scenario = gw.load_map(str(path))
+    rows = evaluate.run_frontier(evaluate.Args(policy=policy, sensor="camera", sensor_range=2, quiet=True),
+                                 [("pocket", scenario)], paths)
+    assert paths[0][1, 0].tolist() == [0, 2]
+    assert rows[0]["completed"] and not rows[0]["truncated"]
+    core = gw.GridWorldCore(gw.EnvConfig(sensor="camera", sensor_range=2), 1)  # the same world, one heuristic call
+    core.reset(scenarios=[scenario])
+    assert core.heuristic_actions(False, policy != "frontier-row-major", policy == "frontier-far-first")[0, 0] == gw.EAST
+
+
 def test_at_range_1_dead_ends_first_counts_only_known_neighbours():
     """2x6 room, agent at (0, 0), camera K=1: it knows columns 0-1. The nearest points of interest (0, 1) and (1, 0)
     have one known target neighbour each ((1, 1); (0, 2) is unseen), so row-major order takes (0, 1): EAST, and so on
