@@ -425,7 +425,8 @@ def _row(name: str, s: Scenario, m: dict) -> dict:
                 **({"walled_off": m["walled_off"]} if "walled_off" in m else {}))
 
 
-def summarize(rows: list[dict]) -> dict:
+def summarize(rows: list[dict], families: dict[str, str] | None = None) -> dict:
+    """Statistics of some episodes: over all, by size and, given each map's family (dataset_families), by family."""
     def stats(group):
         out = {"episodes": len(group),
                "completion_rate": float(np.mean([r["completed"] for r in group]))}
@@ -436,7 +437,23 @@ def summarize(rows: list[dict]) -> dict:
         return out
 
     sizes = sorted({r["size"] for r in rows}, key=lambda z: tuple(map(int, z.split("x"))))
-    return {"all": stats(rows), "by_size": {z: stats([r for r in rows if r["size"] == z]) for z in sizes}}
+    out = {"all": stats(rows), "by_size": {z: stats([r for r in rows if r["size"] == z]) for z in sizes}}
+    if families:
+        out["by_family"] = {f: stats([r for r in rows if families.get(r["map"]) == f])
+                            for f in dict.fromkeys(families.get(r["map"]) for r in rows) if f is not None}
+    return out
+
+
+def dataset_families(path: str | None) -> dict[str, str]:
+    """Episode map name -> map family, for a dataset that stores a `family` column (structured_eval, or one saved
+    with gridworld.save_dataset(..., family=...)); empty otherwise."""
+    if not path:
+        return {}
+    with np.load(path) as data:
+        if "family" not in data.files:
+            return {}
+        base = os.path.basename(path)
+        return {f"{base}[{i}]": str(f) for i, f in enumerate(data["family"])}
 
 
 def describe(policy: str, rows: list[dict]) -> str:
@@ -452,9 +469,10 @@ def describe(policy: str, rows: list[dict]) -> str:
     return text
 
 
-def comparison(results: dict[str, list[dict]]) -> tuple[dict, str]:
-    """The policies side by side on the same episodes: mean overlap, time-save and completion overall and by
-    map (JSON), and as markdown tables, by map when there are at most BY_MAP_UP_TO maps."""
+def comparison(results: dict[str, list[dict]], families: dict[str, str] | None = None) -> tuple[dict, str]:
+    """The policies side by side on the same episodes: mean overlap, time-save and completion overall, by
+    map family when the dataset stores one (dataset_families) and by map (JSON), and as markdown tables, by
+    map when there are at most BY_MAP_UP_TO maps."""
     def means(rows):
         return {"episodes": len(rows), "overlap": round(float(np.mean([r["overlap"] for r in rows])), 4),
                 "time_save": round(float(np.mean([r["time_save"] for r in rows])), 4),
@@ -469,15 +487,26 @@ def comparison(results: dict[str, list[dict]]) -> tuple[dict, str]:
              "| policy | overlap | time-save | completed |", "|---|---|---|---|"]
     lines += [f"| {p} | {m['overlap']:.3f} | {m['time_save']:.3f} | {100 * m['completion_rate']:.0f}% |"
               for p, m in table["all"].items()]
+    key = "overlap" if table["agents"] == 1 else "time_save"  # several agents: §7.5's time-save factor
+    groups = list(dict.fromkeys(families[r["map"]] for r in first if r["map"] in families)) if families else []
+    if groups:
+        table["by_family"] = {f: {p: means([r for r in rows if families.get(r["map"]) == f])
+                                  for p, rows in results.items()} for f in groups}
+        lines += ["", f"Mean {key.replace('_', '-')} by map family (completion when below 100%):", "",
+                  "| family | episodes | " + " | ".join(results) + " |", "|---|---|" + "---|" * len(results)]
+        lines += [_table_row(f, by_policy, key) for f, by_policy in table["by_family"].items()]
     if len(maps) <= BY_MAP_UP_TO:
-        key = "overlap" if table["agents"] == 1 else "time_save"  # several agents: §7.5's time-save factor
         lines += ["", f"Mean {key.replace('_', '-')} by map (completion when below 100%):", "",
                   "| map | episodes | " + " | ".join(results) + " |", "|---|---|" + "---|" * len(results)]
-        for m, by_policy in table["by_map"].items():
-            cells = [f"{v[key]:.3f}" + (f" ({100 * v['completion_rate']:.0f}%)" if v["completion_rate"] < 1 else "")
-                     for v in by_policy.values()]
-            lines.append(f"| {m} | {next(iter(by_policy.values()))['episodes']} | " + " | ".join(cells) + " |")
+        lines += [_table_row(m, by_policy, key) for m, by_policy in table["by_map"].items()]
     return table, "\n".join(lines)
+
+
+def _table_row(label: str, by_policy: dict, key: str) -> str:
+    """A markdown row of comparison's tables: the episodes, then each policy's mean `key` (and completion)."""
+    cells = [f"{v[key]:.3f}" + (f" ({100 * v['completion_rate']:.0f}%)" if v["completion_rate"] < 1 else "")
+             for v in by_policy.values()]
+    return f"| {label} | {next(iter(by_policy.values()))['episodes']} | " + " | ".join(cells) + " |"
 
 
 def _runner(args: Args, policy: str):
@@ -542,14 +571,16 @@ def main(args: Args) -> dict:
 
 def _write(args: Args, episodes: list[tuple[str, Scenario]], results: dict[str, list[dict]],
            paths: dict[str, dict]) -> dict:
-    rows = results[args.policy]
+    rows, families = results[args.policy], dataset_families(args.dataset)
     summary = {"policy": args.policy, "dataset": args.dataset, "maps": list(args.maps),
-               "agents": args.agents, "seed": args.seed, **summarize(rows)}
+               "agents": args.agents, "seed": args.seed, **summarize(rows, families)}
     files = {os.path.join(args.out, "episodes.csv"): partial(_write_csv, rows=rows),
              os.path.join(args.out, "summary.json"): partial(_write_json, data=summary)}
     lines = [describe(args.policy, rows)]
+    if families:
+        lines += ["  " + describe(f, [r for r in rows if families.get(r["map"]) == f]) for f in summary["by_family"]]
     if len(results) > 1:
-        table, text = comparison(results)
+        table, text = comparison(results, families)
         files[os.path.join(args.out, "compare.json")] = partial(_write_json, data=table)
         files[os.path.join(args.out, "compare.md")] = partial(_write_text, text=f"# {' vs '.join(results)}\n\n{text}\n")
         lines += ["", text]

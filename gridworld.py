@@ -1937,10 +1937,9 @@ class GridWorldCore:
         key = np.concatenate([passable, _pack(self.start[:, c:c + H, c:c + W])], 1).reshape(self.B, -1)
         old_key, steps = getattr(self, "_from_start", (None, None))
         stale = np.ones(self.B, bool) if old_key is None or old_key.shape != key.shape else (old_key != key).any(1)
-        if stale.any():
-            fresh = _distance_from(_unpack(passable[stale], W), self.start[stale, c:c + H, c:c + W])
-            steps = fresh if stale.all() else np.where(stale[:, None, None], 0, steps)
-            steps[stale] = fresh
+        if stale.any():  # a copy: copies of this core may share the old array
+            steps = np.zeros((self.B, H, W), np.int64) if stale.all() else steps.copy()
+            steps[stale] = _distance_from(_unpack(passable[stale], W), self.start[stale, c:c + H, c:c + W])
             self._from_start = (key, steps)
         return steps
 

@@ -32,6 +32,27 @@ def test_csv_columns_and_summary(tmp_path):
     assert json.loads((tmp_path / "out" / "summary.json").read_text())["policy"] == "boustrophedon"
 
 
+def test_a_dataset_with_families_is_summarised_and_compared_by_family(tmp_path, capsys):
+    """Two 1x3 corridors (family "a", start at an end: 2 steps, overlap 0) and one 1x3 corridor started in the
+    middle (family "b": 3 steps, one revisit over two cells to cover: overlap 0.5): greedy's by-family means are
+    those, in the summary, the comparison and the printed lines; a dataset with no family column has no by-family
+    figures."""
+    corridor = np.zeros((1, 3), bool)
+    scenarios = [gw.Scenario(corridor, np.array([[0, c]])) for c in (0, 2, 1)]
+    path = tmp_path / "families.npz"
+    gw.save_dataset(str(path), scenarios, family=np.array(["a", "a", "b"]))
+    summary, _ = run(tmp_path, policy="greedy", dataset=str(path), compare="boustrophedon")
+    assert {f: (v["episodes"], v["overlap"]["mean"]) for f, v in summary["by_family"].items()} == {
+        "a": (2, 0.0), "b": (1, 0.5)}
+    table = json.loads((tmp_path / "out" / "compare.json").read_text())
+    assert table["by_family"]["b"]["greedy"] == dict(episodes=1, overlap=0.5, time_save=1.5, completion_rate=1.0)
+    out = capsys.readouterr().out
+    assert "  b on 1 episodes: overlap 0.500" in out and "| b | 1 | 0.500 | 0.500 |" in out
+    gw.save_dataset(str(path), scenarios)
+    summary, _ = run(tmp_path, policy="greedy", dataset=str(path), compare="boustrophedon")
+    assert "by_family" not in summary and "by_family" not in json.loads((tmp_path / "out" / "compare.json").read_text())
+
+
 def test_hand_counted_corridor(tmp_path):
     # 1x5 corridor from the middle: 2 steps west, then 4 east = 6 steps, 2 revisits
     path = tmp_path / "corridor.txt"
