@@ -1802,23 +1802,21 @@ class GridWorldCore:
     # --- the navigation heuristic -------------------------------------------------------
     def heuristic_actions(self, random_ties: bool = True, dead_ends_first: bool = False,
                           far_first: bool = False) -> np.ndarray:
-        """One step along a shortest path to the nearest known point of interest for every
-        agent at once, (B, N). With several agents, targets are claimed greedily by distance
-        (the nearest agent-target pair first, the lower index on a tie), so no two agents chase
-        one cell and a contested cell goes to the agent with the shorter path. Ties between
-        equally near targets and equally short paths are broken at random (§6.3.1: a
-        reinforced random walk), or with random_ties=False by the first target in row-major
-        order and the first move in N, S, W, E order. Paths use known free cells; a world with
-        no known point of interest targets its frontier (known free cells next to unseen
-        ones), and so does an agent that reaches no known point of interest over known cells
-        (a camera sees through walls). An agent left without a target waits (WAIT). With dead_ends_first, equally near
-        targets with fewer target neighbours come first (Warnsdorff's rule): a cell that would
-        be left behind as an isolated hole is covered now, which halves greedy's overlap
-        (README). With far_first, equally near targets farther from the agents' starting cells
-        (steps over the known passable cells) come first, so the walk sweeps away from the start
-        and ends near it, as the wavefront planner's does; with both, the fewest (target
-        neighbours - steps from the start) first. The row-major or random order then breaks the
-        remaining ties."""
+        """One step along a shortest path to the nearest known point of interest for every agent at once, (B, N).
+        With several agents, targets are claimed greedily by distance (the nearest agent-target pair first, the
+        lower index on a tie), so no two agents chase one cell and a contested cell goes to the agent with the
+        shorter path. Ties between equally near targets and equally short paths are broken at random (§6.3.1: a
+        reinforced random walk), or with random_ties=False by the first target in row-major order and the first
+        move in N, S, W, E order. Paths use known free cells; a world with no known point of interest targets
+        its frontier (known free cells next to unseen ones), and so does an agent that reaches no known point of
+        interest over known cells (a camera sees through walls). An agent left without a target waits (WAIT).
+        With dead_ends_first, equally near targets with fewer target neighbours come first (Warnsdorff's rule):
+        a cell that would be left behind as an isolated hole is covered now, which halves greedy's overlap
+        (README). With far_first, equally near targets farther from the agents' starting cells (steps over the
+        known passable cells) come first, so the walk sweeps away from the start and ends near it, as the
+        wavefront planner's does; in a team also those farther from the agent's nearest working teammate
+        (Manhattan), so the team spreads out. With both, the fewest (target neighbours - steps from the start -
+        steps to the teammate) first. The row-major or random order then breaks the remaining ties."""
         B, H, W, c = self.B, self.H, self.W, self.c
         inner = (slice(None), slice(c, c + H), slice(c, c + W))
         seen = self.seen[inner]
@@ -1891,6 +1889,12 @@ class GridWorldCore:
             rank += degree.reshape(B, H * W)[m // N, cell]
         if far_first:
             rank -= self._steps_from_start(passable).reshape(B, H * W)[m // N, cell]
+        if far_first and N > 1:  # and away from the nearest working teammate (Manhattan): the team spreads out
+            world, y, x = m // N, cell // W, cell % W
+            apart = (np.abs(y[:, None] - yx[:, 0].reshape(B, N)[world])
+                     + np.abs(x[:, None] - yx[:, 1].reshape(B, N)[world]))
+            nearest = np.where(working[world] & (np.arange(N) != (m % N)[:, None]), apart, H + W).min(1)
+            rank -= np.where(nearest < H + W, nearest, 0)  # no working teammate: no pull
         if len(rank):  # squeezed into [0, 1): the distance stays the first key
             tie = (rank - rank.min() + tie) / (rank.max() - rank.min() + 1)
         order = np.lexsort((l + tie, m))

@@ -65,6 +65,7 @@ SENSOR_PER_SIZE, SENSOR_PER_BAND = 2, 1  # the sensors part: 52 cpp_eval maps, 1
 MOVINGAI_PLANNERS = ("greedy", "greedy-dead-ends", "wavefront", "rollout", "lkh")  # beside the agent, where collected
 MARL_EVERY, MARL_AGENTS = 10, range(1, 16)  # rainbow_marl: every 10th marl_eval layout, N = 1..15 (Fig. 7.11)
 FAULTY_AT, FAULTY_AGENTS = 0.5, (2, 5, 10)  # §7.5.3.3: the last agent freezes halfway
+MARL_STRUCTURED_EVERY, MARL_STRUCTURED_AGENTS = 21, 5  # rainbow_marl on structured_eval: 80 maps, N = 5
 REWARD_BASELINES = ("greedy", "pretrained")  # results/marl_rewards/: these first, then one folder a training run
 T_975 = {1: 12.706, 2: 4.303, 3: 3.182, 4: 2.776, 5: 2.571, 6: 2.447, 7: 2.365, 8: 2.306, 9: 2.262}  # Student's t
 FIGURES = {"planners_by_size": "planners_overlap_by_size.png", "planners_external": "planners_external.png",
@@ -313,13 +314,23 @@ def sensor_results(model: str, per_size: int = SENSOR_PER_SIZE, per_band: int = 
     return result
 
 
-def marl_results(model: str, quiet: bool = False, every: int = MARL_EVERY, agents=MARL_AGENTS) -> dict:
-    """A rainbow_marl model on marl_eval (every `every`-th layout of sizes 10-30) with N = `agents` beside the
-    greedy planners with claims, and the faulty-agent experiment of §7.5.3.3 at N = FAULTY_AGENTS."""
+def marl_results(model: str, quiet: bool = False, every: int = MARL_EVERY, agents=MARL_AGENTS,
+                 structured_every: int = MARL_STRUCTURED_EVERY) -> dict:
+    """A rainbow_marl model on marl_eval (every `every`-th layout of sizes 10-30) with N = `agents` and on every
+    `structured_every`-th structured_eval map with N = MARL_STRUCTURED_AGENTS, beside the greedy planners with
+    claims, and the faulty-agent experiment of §7.5.3.3 at N = FAULTY_AGENTS."""
     result = {"every": every, "faulty_at": FAULTY_AT, "model": _model_json(model), "agents": {}, "faulty": {}}
 
     def mean(rows, key):
         return round(float(np.mean([r[key] for r in rows])), 4)
+
+    n = MARL_STRUCTURED_AGENTS
+    episodes = evaluate.scenarios_from(evaluate.Args(dataset=os.path.join(ROOT, "maps/structured_eval.npz"), agents=n,
+                                                     every=structured_every))
+    result["structured_eval"] = {"every": structured_every, "agents": n, "maps": len(episodes), "rainbow_marl": mean(
+        evaluate.run_marl(evaluate.Args(policy="marl", checkpoint=model, agents=n, quiet=quiet), episodes), "time_save")}
+    result["structured_eval"] |= {p.replace("-", "_"): mean(evaluate.run_planner(p, episodes), "time_save")
+                                  for p in ("greedy", "greedy-dead-ends", "greedy-far-first")}
 
     for n in tqdm(agents, desc="rainbow_marl", disable=quiet or not sys.stdout.isatty()):
         scenarios, sizes = classical_cpp.marl_eval_subset(n, every)
@@ -327,10 +338,12 @@ def marl_results(model: str, quiet: bool = False, every: int = MARL_EVERY, agent
         rows = evaluate.run_marl(evaluate.Args(policy="marl", checkpoint=model, agents=n, quiet=quiet), episodes)
         greedy = evaluate.run_planner("greedy", episodes)
         dead_ends = evaluate.run_planner("greedy-dead-ends", episodes)
+        far_first = evaluate.run_planner("greedy-far-first", episodes)
         result["agents"][str(n)] = {
             "maps": len(rows), "time_save": mean(rows, "time_save"), "completion": mean(rows, "completed"),
             "heuristic_share": round(float(np.mean([r["heuristic_steps"] / (n * r["steps"]) for r in rows])), 4),
             "greedy": mean(greedy, "time_save"), "greedy_dead_ends": mean(dead_ends, "time_save"),
+            "greedy_far_first": mean(far_first, "time_save"),
             "by_size": {str(z): mean([r for r, k in zip(rows, sizes) if k == z], "time_save") for z in np.unique(sizes)}}
         if n in FAULTY_AGENTS:
             faulty = evaluate.run_marl(evaluate.Args(policy="marl", checkpoint=model, agents=n, faulty_agent_at=FAULTY_AT,
@@ -415,7 +428,7 @@ def collect(args: Collect, staging: str) -> list[str]:
         elif part == "rainbow_cpp":
             result = rainbow_results(args.per_size, args.p2p_maps, model, args.quiet)
         elif part == "rainbow_marl":
-            result = marl_results(model, args.quiet, MARL_EVERY, MARL_AGENTS)
+            result = marl_results(model, args.quiet, MARL_EVERY, MARL_AGENTS, MARL_STRUCTURED_EVERY)
         else:
             result = tabular_results(model, args.quiet)
         result["provenance"] = provenance(started, args)
@@ -764,6 +777,7 @@ def marl_lines(mr: dict, rewards: dict) -> list[str]:
     m = mr["model"]
     wall = _wall(m)
     sizes = _sizes(mr["agents"][agents[0]]["by_size"])
+    far = int("greedy_far_first" in mr["agents"][agents[0]])  # the far-first heuristic's column, where it was measured
     met = [f"N = {n}: {mr['agents'][n]['time_save']:.3f} against ≤ {t} "
            f"({'met' if mr['agents'][n]['time_save'] <= t else 'not met'})"
            for n, t in REFERENCE["rainbow_marl_time_save"].items() if n in mr["agents"]]
@@ -784,13 +798,22 @@ def marl_lines(mr: dict, rewards: dict) -> list[str]:
     lines += [
         f"`marl_eval` sizes {sizes}, every {_ordinal(mr['every'])} layout, the first N stored starts (the N + 1-agent "
         "episode adds one agent to the N-agent one); heuristic share = fraction of agent-steps the fallback took:", "",
-        table(["N", "maps", "rainbow_marl", "greedy (claims)", "greedy-dead-ends (claims)", "1/N", "completed",
-               "heuristic share"],
+        table(["N", "maps", "rainbow_marl", "greedy (claims)", "greedy-dead-ends (claims)"]
+              + ["greedy-far-first (claims)"] * far + ["1/N", "completed", "heuristic share"],
               [[n, str(mr["agents"][n]["maps"]), f"{mr['agents'][n]['time_save']:.3f}",
-                f"{mr['agents'][n]['greedy']:.3f}", f"{mr['agents'][n]['greedy_dead_ends']:.3f}", f"{1 / int(n):.3f}",
-                f"{100 * mr['agents'][n]['completion']:.0f}%", f"{mr['agents'][n]['heuristic_share']:.2f}"]
-               for n in agents]), "",
+                f"{mr['agents'][n]['greedy']:.3f}", f"{mr['agents'][n]['greedy_dead_ends']:.3f}"]
+               + ([f"{mr['agents'][n]['greedy_far_first']:.3f}"] if far else [])
+               + [f"{1 / int(n):.3f}", f"{100 * mr['agents'][n]['completion']:.0f}%",
+                  f"{mr['agents'][n]['heuristic_share']:.2f}"] for n in agents]), "",
         f"![rainbow_marl time-save factor]({FIGURES['rainbow_marl']})"]
+    if "structured_eval" in mr:
+        st = mr["structured_eval"]
+        lines += ["", f"`structured_eval` (rooms, corridors, clutter, maze), every {_ordinal(st['every'])} map "
+                  f"({st['maps']} maps), N = {st['agents']}, the first N stored starts: mean $t_{{sf}}$ "
+                  + ", ".join(f"{name} {st[key]:.3f}" for key, name in (
+                      ("rainbow_marl", "rainbow_marl"), ("greedy", "greedy (claims)"),
+                      ("greedy_dead_ends", "greedy-dead-ends (claims)"), ("greedy_far_first", "greedy-far-first (claims)")))
+                  + "."]
     if mr["faulty"]:  # collected since the walled-off count exists: two more columns
         walled_on = all("walled_off" in f for f in mr["faulty"].values())
         walled_head = ["maps walled off by the frozen agent", "completed (the others)"] if walled_on else []
@@ -964,11 +987,15 @@ def headline(results: dict) -> list[str]:
     lines = [table(header, rows)]
     if mr is not None:
         team = [n for n in ("2", "5", "10") if n in mr["agents"]]
-        lines += ["", table(["mean time-save $t_{sf}$, marl_eval sizes 10-30", *[f"N = {n}" for n in team]], [
-            ["rainbow_marl (shipped)", *[f"{mr['agents'][n]['time_save']:.3f}" for n in team]],
-            ["greedy with claims", *[f"{mr['agents'][n]['greedy']:.3f}" for n in team]],
-            ["greedy-dead-ends with claims (its teacher)", *[f"{mr['agents'][n]['greedy_dead_ends']:.3f}" for n in team]],
-        ])]
+        far_first = bool(mr["model"].get("args", {}).get("heuristic_far_first"))
+        rows = [["rainbow_marl (shipped)", *[f"{mr['agents'][n]['time_save']:.3f}" for n in team]],
+                ["greedy with claims", *[f"{mr['agents'][n]['greedy']:.3f}" for n in team]],
+                [f"greedy-dead-ends with claims{'' if far_first else ' (its teacher)'}",
+                 *[f"{mr['agents'][n]['greedy_dead_ends']:.3f}" for n in team]]]
+        if "greedy_far_first" in mr["agents"][team[0]]:
+            rows.append([f"greedy-far-first with claims{' (its teacher)' if far_first else ''}",
+                         *[f"{mr['agents'][n]['greedy_far_first']:.3f}" for n in team]])
+        lines += ["", table(["mean time-save $t_{sf}$, marl_eval sizes 10-30", *[f"N = {n}" for n in team]], rows)]
     return lines
 
 

@@ -1,7 +1,8 @@
 """The far-first heuristic (GridWorldCore.heuristic_actions(far_first=True), classical_cpp's greedy-far-first).
 
 Among the nearest points of interest it takes the one with the fewest (target neighbours - steps from the start)
-with dead-ends-first, the most steps from the start without it, then the first in row-major order. Checked against
+with dead-ends-first, the most steps from the start without it, then the first in row-major order; in a team also
+minus the steps to the nearest working teammate (by hand). Checked against
 a plain breadth-first reference on part-walked maps: the next cell the heuristic covers is the reference's choice.
 The rollout's walkers take the same moves (tests/test_walkers.py).
 """
@@ -95,6 +96,25 @@ def test_far_first_sweeps_away_from_the_start_by_hand():
         assert core.agent_cells()[0, 0].tolist() == [1, 2]
         moves[dead_ends_first, far_first] = int(core.heuristic_actions(False, dead_ends_first, far_first)[0, 0])
     assert moves == {(False, False): 2, (False, True): 1, (True, True): 1}  # W = 2, S = 1
+
+
+def test_in_a_team_far_first_sends_each_agent_away_from_its_teammate_by_hand():
+    """A 1x5 corridor, agent 0 at column 3 and agent 1 at column 1 (their starts covered); the points of interest
+    0, 2 and 4 are each one step from an agent, none has a target neighbour and each is one step from a start.
+    Agent 0's are 2 (one step from agent 1) and 4 (three steps): far-first takes 4 (E), row-major 2 (W). Agent 1's
+    are 0 (two steps from agent 0) and 2 (one step): 0 (W) either way. A frozen teammate pulls nobody: agent 0
+    alone goes W, row-major, as in a single-agent world."""
+    s = gw.Scenario(np.zeros((1, 5), bool), np.array([[0, 3], [0, 1]]))
+    moves = {}
+    for dead_ends_first, far_first in ((True, False), (False, True), (True, True)):
+        core = gw.GridWorldCore(gw.EnvConfig(load_state=True, number_agents=2, battery_factor=1e6), 1)
+        core.configure(scenarios=[cc.with_starts(s)])
+        core.reset()
+        moves[dead_ends_first, far_first] = core.heuristic_actions(False, dead_ends_first, far_first)[0].tolist()
+    assert moves == {(True, False): [gw.WEST, gw.WEST], (False, True): [gw.EAST, gw.WEST],
+                     (True, True): [gw.EAST, gw.WEST]}
+    core.frozen[0, 1] = core.any_frozen = True
+    assert core.heuristic_actions(False, True, True)[0, 0] == gw.WEST
 
 
 def test_greedy_far_first_planner_covers_every_map():

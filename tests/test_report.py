@@ -412,6 +412,7 @@ def tiny(tmp_path, monkeypatch, small_report_maps):
     import tabular_q
     small_report_maps(7, 2)
     monkeypatch.setattr(report, "MARL_AGENTS", range(1, 3))
+    monkeypatch.setattr(report, "MARL_STRUCTURED_EVERY", 840)  # 2 of structured_eval's 1,680 maps
     ch5 = np.load(ROOT / "maps" / "ch5_eval.npz")
     keep = np.flatnonzero((ch5["size"] <= 6) & (ch5["requested_obstacles"] <= 2))[::25]
     scenarios = gw.load_dataset(str(ROOT / "maps" / "ch5_eval.npz"))
@@ -468,6 +469,8 @@ def test_all_on_tiny_settings_writes_into_out_only(tiny):
     assert list(sr["structured_eval"]["full"]["frontier"]["by"]) == list(gw.STRUCTURED_FAMILIES)
     mr = json.loads((out / "rainbow_marl.json").read_text())
     assert list(mr["agents"]) == ["1", "2"] and list(mr["faulty"]) == ["2"] and mr["agents"]["2"]["maps"] == 2
+    assert list(mr["structured_eval"]) == ["every", "agents", "maps", "rainbow_marl", "greedy", "greedy_dead_ends",
+                                           "greedy_far_first"] and mr["structured_eval"]["maps"] == 2
     fig55 = json.loads((out / "tabular" / "fig5_5.json").read_text())
     assert {(s["size"], s["obstacles"]) for s in fig55["settings"]} == {(4, 0), (4, 2), (6, 0), (6, 2)}
     assert "curve_rho" not in fig55["model"]
