@@ -999,10 +999,12 @@ class _Walkers:
 
     def _key(self, degree: np.ndarray, cells: np.ndarray, maps: np.ndarray) -> np.ndarray:
         """The heuristic's order among equally near targets of walkers on `maps` (broadcast with cells): fewer
-        target neighbours first (dead-ends-first) minus steps from the start (far-first), then row-major (the
-        border keeps flat order row-major)."""
+        target neighbours first (dead-ends-first) minus steps from the start (far-first; with both, holes first),
+        then row-major (the border keeps flat order row-major)."""
         rank = degree + self.P if self.dead_ends_first else np.full(np.shape(cells), self.P)
         if self.from_start is not None:
+            if self.dead_ends_first:  # holes (no target neighbour) first, as heuristic_actions
+                rank = rank + np.where(degree > 0, 2 * self.P, 0)
             rank = rank - self.from_start[maps, cells]
         return rank * self.P + cells
 
@@ -1815,8 +1817,9 @@ class GridWorldCore:
         (README). With far_first, equally near targets farther from the agents' starting cells (steps over the
         known passable cells) come first, so the walk sweeps away from the start and ends near it, as the
         wavefront planner's does; in a team also those farther from the agent's nearest working teammate
-        (Manhattan), so the team spreads out. With both, the fewest (target neighbours - steps from the start -
-        steps to the teammate) first. The row-major or random order then breaks the remaining ties."""
+        (Manhattan), so the team spreads out. With both, a target with no target neighbour (a hole if left) first,
+        then the fewest (target neighbours - steps from the start - steps to the teammate). The row-major or
+        random order then breaks the remaining ties."""
         B, H, W, c = self.B, self.H, self.W, self.c
         inner = (slice(None), slice(c, c + H), slice(c, c + W))
         seen = self.seen[inner]
@@ -1888,6 +1891,8 @@ class GridWorldCore:
             degree[:, :, :-1] += t[:, :, 1:]
             rank += degree.reshape(B, H * W)[m // N, cell]
         if far_first:
+            if dead_ends_first:  # a target with no target neighbour would be left as a hole: it still comes first
+                rank += np.where(rank > 0, 4 * H * W, 0)
             rank -= self._steps_from_start(passable).reshape(B, H * W)[m // N, cell]
         if far_first and N > 1:  # and away from the nearest working teammate (Manhattan): the team spreads out
             world, y, x = m // N, cell // W, cell % W

@@ -1,8 +1,9 @@
 """The far-first heuristic (GridWorldCore.heuristic_actions(far_first=True), classical_cpp's greedy-far-first).
 
-Among the nearest points of interest it takes the one with the fewest (target neighbours - steps from the start)
-with dead-ends-first, the most steps from the start without it, then the first in row-major order; in a team also
-minus the steps to the nearest working teammate (by hand). Checked against
+Among the nearest points of interest it takes, with dead-ends-first, one with no target neighbour (a hole if left)
+first, then the one with the fewest (target neighbours - steps from the start); without dead-ends-first the most
+steps from the start; then the first in row-major order. In a team also minus the steps to the nearest working
+teammate (by hand). Checked against
 a plain breadth-first reference on part-walked maps: the next cell the heuristic covers is the reference's choice.
 The rollout's walkers take the same moves (tests/test_walkers.py).
 """
@@ -41,7 +42,8 @@ def reference_goal(free, target, agent, start, dead_ends_first: bool) -> tuple[i
     for y, x in zip(*np.nonzero(nearest)):  # row-major
         degree = sum(target[y + dy, x + dx] for dy, dx in ((-1, 0), (1, 0), (0, -1), (0, 1))
                      if 0 <= y + dy < free.shape[0] and 0 <= x + dx < free.shape[1])
-        key = (degree if dead_ends_first else 0) - from_start[y, x]
+        key = ((degree > 0, degree) if dead_ends_first else (0, 0)) + (-from_start[y, x],)  # holes first
+        key = (key[0], key[1] + key[2])
         if best is None or key < best[0]:
             best = (key, (int(y), int(x)))
     return best[1]
