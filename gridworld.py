@@ -1892,7 +1892,7 @@ class GridWorldCore:
             rank += degree.reshape(B, H * W)[m // N, cell]
         if far_first:
             if dead_ends_first:  # a target with no target neighbour would be left as a hole: it still comes first
-                rank += np.where(rank > 0, 4 * H * W, 0)
+                rank += np.where(rank > 0, 4 * (H + 1) * (W + 1), 0)  # past any (steps from start + to teammate)
             rank -= self._steps_from_start(passable).reshape(B, H * W)[m // N, cell]
         if far_first and N > 1:  # and away from the nearest working teammate (Manhattan): the team spreads out
             world, y, x = m // N, cell // W, cell % W
