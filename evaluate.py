@@ -80,8 +80,9 @@ class Args:
     policy: str = "greedy"
     """a classical_cpp planner (greedy, greedy-dead-ends, greedy-far-first, rollout, boustrophedon, spiral-stc,
     wavefront, lkh, partition), a learned agent (rainbow, marl, tabular) or a policy of the known map under
-    --sensor (frontier: the heuristic with dead-ends-first ties; frontier-row-major: row-major ties;
-    frontier-far-first: far-first ties; frontier-rollout: its one-step rollout on the known map)"""
+    --sensor (frontier: the heuristic with dead-ends-first ties, the better on random maps; frontier-row-major:
+    row-major ties; frontier-far-first: far-first ties, the better on structured maps; frontier-rollout: its
+    one-step rollout on the known map)"""
     checkpoint: str | None = None
     """weights / table of a learned agent"""
     maps: tuple[str, ...] = ()
