@@ -1816,10 +1816,10 @@ class GridWorldCore:
         a cell that would be left behind as an isolated hole is covered now, which halves greedy's overlap
         (README). With far_first, equally near targets farther from the agents' starting cells (steps over the
         known passable cells) come first, so the walk sweeps away from the start and ends near it, as the
-        wavefront planner's does; in a team also those farther from the agent's nearest working teammate
-        (Manhattan), so the team spreads out. With both, a target with no target neighbour (a hole if left) first,
-        then the fewest (target neighbours - steps from the start - steps to the teammate). The row-major or
-        random order then breaks the remaining ties."""
+        wavefront planner's does; in a team also those farther from the agent's working teammates (twice the mean
+        Manhattan steps to them), so the team spreads out. With both, a target with no target neighbour (a hole if
+        left) first, then the fewest (target neighbours - steps from the start - 2 x mean steps to the teammates).
+        The row-major or random order then breaks the remaining ties."""
         B, H, W, c = self.B, self.H, self.W, self.c
         inner = (slice(None), slice(c, c + H), slice(c, c + W))
         seen = self.seen[inner]
@@ -1892,14 +1892,14 @@ class GridWorldCore:
             rank += degree.reshape(B, H * W)[m // N, cell]
         if far_first:
             if dead_ends_first:  # a target with no target neighbour would be left as a hole: it still comes first
-                rank += np.where(rank > 0, 4 * (H + 1) * (W + 1), 0)  # past any (steps from start + to teammate)
+                rank += np.where(rank > 0, 4 * (H + 1) * (W + 1), 0)  # past any (steps from start + to teammates)
             rank -= self._steps_from_start(passable).reshape(B, H * W)[m // N, cell]
-        if far_first and N > 1:  # and away from the nearest working teammate (Manhattan): the team spreads out
+        if far_first and N > 1:  # and away from the working teammates (mean Manhattan steps, twice): the team spreads out
             world, y, x = m // N, cell // W, cell % W
             apart = (np.abs(y[:, None] - yx[:, 0].reshape(B, N)[world])
                      + np.abs(x[:, None] - yx[:, 1].reshape(B, N)[world]))
-            nearest = np.where(working[world] & (np.arange(N) != (m % N)[:, None]), apart, H + W).min(1)
-            rank -= np.where(nearest < H + W, nearest, 0)  # no working teammate: no pull
+            mates = working[world] & (np.arange(N) != (m % N)[:, None])
+            rank -= 2 * (np.where(mates, apart, 0).sum(1) // np.maximum(mates.sum(1), 1))  # no working teammate: 0
         if len(rank):  # squeezed into [0, 1): the distance stays the first key
             tie = (rank - rank.min() + tie) / (rank.max() - rank.min() + 1)
         order = np.lexsort((l + tie, m))

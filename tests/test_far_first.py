@@ -119,6 +119,22 @@ def test_in_a_team_far_first_sends_each_agent_away_from_its_teammate_by_hand():
     assert core.heuristic_actions(False, True, True)[0, 0] == gw.WEST
 
 
+def test_in_a_team_far_first_weighs_the_mean_steps_to_every_teammate_by_hand():
+    """A 1x9 corridor, agent 0 at column 4, teammates at columns 2, 7 and 8 (starts covered). Agent 0's nearest
+    points of interest are 3 and 5, each one step from a start. Steps from 3 to the teammates: 1, 4, 5 (mean 3);
+    from 5: 3, 2, 3 (mean 2, though its nearest teammate is the farther one). Without dead-ends-first agent 0
+    goes W, to 3 (-2 x 3 < -2 x 2); with it, 3 is a hole (no target neighbour) and comes first anyway. With the
+    teammates at 7 and 8 frozen only the one at 2 counts: 3 is one step from it, 5 three, so agent 0 goes E."""
+    s = gw.Scenario(np.zeros((1, 9), bool), np.array([[0, 4], [0, 2], [0, 7], [0, 8]]))
+    core = gw.GridWorldCore(gw.EnvConfig(load_state=True, number_agents=4, battery_factor=1e6), 1)
+    core.configure(scenarios=[cc.with_starts(s)])
+    core.reset()
+    assert core.heuristic_actions(False, False, True)[0, 0] == gw.WEST
+    assert core.heuristic_actions(False, True, True)[0, 0] == gw.WEST
+    core.frozen[0, 2:] = core.any_frozen = True
+    assert core.heuristic_actions(False, False, True)[0, 0] == gw.EAST
+
+
 def test_greedy_far_first_planner_covers_every_map():
     scenarios = gw.generate_scenarios(8, seed=5, size=10, map_family="rooms")
     for s, paths in zip(scenarios, cc.plan("greedy-far-first", scenarios)):
