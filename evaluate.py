@@ -473,11 +473,11 @@ def describe(policy: str, rows: list[dict]) -> str:
 def comparison(results: dict[str, list[dict]], families: dict[str, str] | None = None) -> tuple[dict, str]:
     """The policies side by side on the same episodes: mean overlap, time-save and completion overall, by
     map family when the dataset stores one (dataset_families) and by map (JSON), and as markdown tables, by
-    map when there are at most BY_MAP_UP_TO maps."""
+    map when there are at most BY_MAP_UP_TO maps. The tables print the means, the JSON holds them to 4 decimals."""
     def means(rows):
-        return {"episodes": len(rows), "overlap": round(float(np.mean([r["overlap"] for r in rows])), 4),
-                "time_save": round(float(np.mean([r["time_save"] for r in rows])), 4),
-                "completion_rate": round(float(np.mean([r["completed"] for r in rows])), 4)}
+        return {"episodes": len(rows), "overlap": float(np.mean([r["overlap"] for r in rows])),
+                "time_save": float(np.mean([r["time_save"] for r in rows])),
+                "completion_rate": float(np.mean([r["completed"] for r in rows]))}
 
     first = next(iter(results.values()))
     maps = list(dict.fromkeys(r["map"] for r in first))
@@ -500,7 +500,14 @@ def comparison(results: dict[str, list[dict]], families: dict[str, str] | None =
         lines += ["", f"Mean {key.replace('_', '-')} by map (completion when below 100%):", "",
                   "| map | episodes | " + " | ".join(results) + " |", "|---|---|" + "---|" * len(results)]
         lines += [_table_row(m, by_policy, key) for m, by_policy in table["by_map"].items()]
-    return table, "\n".join(lines)
+    return _rounded(table), "\n".join(lines)
+
+
+def _rounded(value, digits: int = 4):
+    """`value` with every float in it (nested dicts) rounded to `digits` decimals."""
+    if isinstance(value, dict):
+        return {k: _rounded(v, digits) for k, v in value.items()}
+    return round(value, digits) if isinstance(value, float) else value
 
 
 def _table_row(label: str, by_policy: dict, key: str) -> str:

@@ -175,6 +175,15 @@ def test_summary_line_is_readable(tmp_path, capsys):
     assert first == "greedy on 2 episodes: overlap 0.250 (median 0.250), time-save 1.250, completed 100%"
 
 
+def test_compare_tables_round_the_means_once():
+    """Two episodes of overlap 0.0605 and 0.06052: the mean 0.06051 prints 0.061 (not 0.060, as it did when the
+    mean was rounded to 4 decimals first) and is kept as 0.0605 in the JSON."""
+    rows = [dict(map="m", agents=1, overlap=o, time_save=0.5, completed=True) for o in (0.0605, 0.06052)]
+    table, text = evaluate.comparison({"greedy": rows})
+    assert "| greedy | 0.061 | 0.500 | 100% |" in text and "| m | 2 | 0.061 |" in text
+    assert table["all"]["greedy"]["overlap"] == 0.0605 and table["by_map"]["m"]["greedy"]["overlap"] == 0.0605
+
+
 def test_compare_runs_the_same_episodes(tmp_path, capsys):
     corridor, room = tmp_path / "corridor.txt", tmp_path / "room.txt"
     corridor.write_text(".....\n")
