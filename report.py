@@ -60,7 +60,7 @@ SCRIPTS = {"rainbow_cpp": "rainbow_cpp.py", "sensors": "rainbow_cpp.py", "rainbo
 CH5_EVAL = os.path.join("maps", "ch5_eval.npz")  # Fig. 5.5's maps, with their size and requested obstacles
 CAMERA_RANGE = 3  # the sensor-based evaluation of the rainbow_cpp model (§6.5.3)
 SENSOR_RANGES, SENSOR_FAILURES = (1, 2, 3, 4, 5), (0.25, 0.5)  # Figs. 6.20-6.21 (K) and 6.22 (camera r = 3)
-SENSOR_POLICIES = ("rainbow", "frontier", "frontier-row-major")  # the agent beside the exploration baselines
+SENSOR_POLICIES = ("rainbow", "frontier", "frontier-row-major", "frontier-far-first")  # the agent, the baselines
 SENSOR_PER_SIZE, SENSOR_PER_BAND = 2, 1  # the sensors part: 52 cpp_eval maps, 16 structured_eval maps
 MOVINGAI_PLANNERS = ("greedy", "greedy-dead-ends", "wavefront", "rollout", "lkh")  # beside the agent, where collected
 MARL_EVERY, MARL_AGENTS = 10, range(1, 16)  # rainbow_marl: every 10th marl_eval layout, N = 1..15 (Fig. 7.11)
@@ -669,18 +669,19 @@ def sensor_lines(sr: dict | None) -> list[str]:
         return [NOT_COLLECTED.format(file=PARTS["sensors"], part="sensors", model=MODELS["sensors"],
                                      script=SCRIPTS["sensors"])]
     head = ["setting", "rainbow + heuristic", "completed", "heuristic share", "frontier", "completed",
-            "frontier-row-major"]
+            "frontier-row-major", "frontier-far-first"]
 
     def row(label, e):
-        a, f, r = (e[p] for p in SENSOR_POLICIES)
+        a, f, r, ff = (e[p] for p in SENSOR_POLICIES)
         return [label, f"**{a['overlap']:.3f}**", f"{100 * a['completion']:.0f}%", f"{a['heuristic_share']:.2f}",
-                f"{f['overlap']:.3f}", f"{100 * f['completion']:.0f}%", f"{r['overlap']:.3f}"]
+                f"{f['overlap']:.3f}", f"{100 * f['completion']:.0f}%", f"{r['overlap']:.3f}", f"{ff['overlap']:.3f}"]
 
     m = sr["model"]
     stages = m.get("args", {}).get("stages") or "the built-in stages"
     lines = [f"The shipped `{MODELS['sensors']}` (trained on `{stages}`) with the heuristic fallback, beside the "
              "exploration baselines of `evaluate.py` on the agent's known map under the same sensor (`frontier`: the "
-             "navigation heuristic with dead-ends-first ties, else the nearest frontier; `frontier-row-major`), on the "
+             "navigation heuristic with dead-ends-first ties, else the nearest frontier; `frontier-row-major`; "
+             "`frontier-far-first`, the model's own hint and fallback under the sensor), on the "
              f"same episodes: the first {sr['per_size']} `cpp_eval` maps of each size and {sr['per_band']} "
              "`structured_eval` map(s) per family and size band. Mean overlap; completion and the heuristic's share of "
              "the agent's steps beside it.", ""]
@@ -698,10 +699,11 @@ def sensor_lines(sr: dict | None) -> list[str]:
         full, camera = sr[name]["full"], sr[name][f"camera_r{CAMERA_RANGE}"]
         lines += [f"**Figs. 6.17-6.19** (`{name}`): camera r = {CAMERA_RANGE} against full information by {what}:", "",
                   table([what, "rainbow, full information", f"rainbow, camera r = {CAMERA_RANGE}", "frontier, camera",
-                         "frontier-row-major, camera"],
+                         "frontier-row-major, camera", "frontier-far-first, camera"],
                         [[k, f"{full['rainbow']['by'][k]['overlap']:.3f}", f"{camera['rainbow']['by'][k]['overlap']:.3f}",
                           f"{camera['frontier']['by'][k]['overlap']:.3f}",
-                          f"{camera['frontier-row-major']['by'][k]['overlap']:.3f}"] for k in camera["rainbow"]["by"]]), ""]
+                          f"{camera['frontier-row-major']['by'][k]['overlap']:.3f}",
+                          f"{camera['frontier-far-first']['by'][k]['overlap']:.3f}"] for k in camera["rainbow"]["by"]]), ""]
     return lines + [f"![agent and frontier baselines by sensor range]({FIGURES['sensors']})"]
 
 
