@@ -96,7 +96,7 @@ class Args:
     agent i starts at entry i; with one agent and several entries, one episode per entry"""
     seed: int = 0
     """seed for starts drawn at random (with the map's file name: a map gets the same starts wherever it is
-    listed)"""
+    listed), and for the sensor failures and lost actions (with the episode's batch of 64)"""
     sensor: str = "full"
     """full, camera or lidar (learned and frontier policies; the planners plan with full information)"""
     sensor_range: int = 3
@@ -309,7 +309,7 @@ def _rainbow(args: Args):
     def rollout(part, i, trajectories):
         return _rows(part, rainbow_cpp.evaluate_policy(
             q, [s for _, s in part], frames, args.sensor, args.sensor_range, args.sensor_failure, args.heuristic,
-            dead_ends_first=args.heuristic_dead_ends, trajectories=trajectories))
+            dead_ends_first=args.heuristic_dead_ends, trajectories=trajectories, seed=args.seed + i))
 
     return lambda episodes, paths=None: _sliced(episodes, 64, rollout, "rainbow", args.quiet, paths)
 

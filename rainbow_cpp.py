@@ -1261,7 +1261,7 @@ def stage_config(stage: gridworld.EnvConfig, args: Args) -> gridworld.EnvConfig:
 
 def evaluate_policy(q: QNetwork, scenarios: list, frames: int, sensor: str = "full", sensor_range: int = 3,
                     sensor_failure: float = 0.0, heuristic: bool = True, random_ties: bool = False,
-                    dead_ends_first: bool = True, trajectories: list | None = None) -> dict:
+                    dead_ends_first: bool = True, trajectories: list | None = None, seed: int = 0) -> dict:
     """Run the deterministic policy (noise off) once on each scenario, all at once; with
     `heuristic` the navigation heuristic takes over when the agent is stuck (§6.5.2.1, the
     conditions of §6.4.2.4) and keeps control for as many new cells as the agent has been stuck
@@ -1270,11 +1270,12 @@ def evaluate_policy(q: QNetwork, scenarios: list, frames: int, sensor: str = "fu
     given as `trajectories` is extended with one (T + 1, 1, 2) int array per scenario: the agent's
     (row, col) at every step from the start, T that episode's own steps. The observation and the frame
     count are the network's own (q.network(), on its device); `frames` counts only for a network without
-    that record. The hint and the fallback take far-first ties where the network was trained so (its far_first)."""
+    that record. The hint and the fallback take far-first ties where the network was trained so (its far_first).
+    `seed` draws the sensor failures, so a run is repeatable."""
     spec = q.network() if hasattr(q, "network") else {"frames": frames}
     observation, frames, device = observation_settings(spec), spec["frames"], device_of(q)
     core = gridworld.GridWorldCore(eval_config(scenarios, sensor, sensor_range, sensor_failure, observation),
-                                   len(scenarios))
+                                   len(scenarios), seed=seed)
     core.configure(scenarios=scenarios)
     core.reset()
     n, hint, far_first = len(scenarios), bool(spec.get("hint")), bool(spec.get("far_first"))

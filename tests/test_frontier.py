@@ -152,6 +152,17 @@ def test_every_episode_completes_under_a_sensor(sensor, sensor_range, failure):
             assert rows == run(policy, episodes, sensor=sensor, sensor_range=sensor_range, sensor_failure=failure)
 
 
+def test_rainbow_under_sensor_failures_is_repeatable_and_follows_the_seed():
+    """The failures are drawn from --seed for the agent as for the baselines: the same seed, the same episodes."""
+    episodes = random_maps(8, seed=5, obstacles=(4, 13))
+
+    def rainbow(seed):
+        args = evaluate.Args(policy="rainbow", sensor="camera", sensor_range=2, sensor_failure=0.5, seed=seed, quiet=True)
+        return [(r["steps"], r["revisits"]) for r in evaluate.run_rainbow(args, episodes)]
+
+    assert rainbow(0) == rainbow(0) != rainbow(1)
+
+
 # ----------------------------------------------------------------------------- rollout_actions(view="known")
 def optimistic(core: gw.GridWorldCore, b: int) -> tuple[gw.Scenario, int]:
     """World b as the agent knows it: unknown cells free and uncovered where the agent can reach them, else obstacles;
