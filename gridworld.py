@@ -1817,7 +1817,8 @@ class GridWorldCore:
         (README). With far_first, equally near targets farther from the agents' starting cells (steps over the
         known passable cells) come first, so the walk sweeps away from the start and ends near it, as the
         wavefront planner's does; in a team also those farther from the agent's working teammates (twice the mean
-        Manhattan steps to them), so the team spreads out. With both, a target with no target neighbour (a hole if
+        Manhattan steps to them), and an agent chases only targets no working teammate is nearer to (its Voronoi
+        region, in steps over the known passable cells) while it has any, so the team spreads out. With both, a target with no target neighbour (a hole if
         left) first, then the fewest (target neighbours - steps from the start - 2 x mean steps to the teammates).
         The row-major or random order then breaks the remaining ties."""
         B, H, W, c = self.B, self.H, self.W, self.c
@@ -1852,16 +1853,17 @@ class GridWorldCore:
         """heuristic_actions' search over bitboards (B, H, words): the first move of every agent, (B, N), and
         whether each agent is working and reaches no target, (B, N)."""
         B, N, H, W = self.B, self.N, self.H, self.W
-        n_targets = np.bitwise_count(targets).sum((1, 2), dtype=np.int64)
         M, rows = B * N, np.arange(B * N)
         yx = self.agent_cells().reshape(M, 2)
         working = self.active & ~self.frozen
-        need = np.where(working, np.minimum(N, n_targets)[:, None], 0).ravel()
         b = np.repeat(np.arange(B), N)
         pas, tg = (passable, targets) if N == 1 else (passable[b], targets[b])
         front = np.zeros_like(pas)
         on = working.ravel()  # absent (parked outside the map) and frozen agents search nothing and wait
         front[rows[on], yx[on, 0], yx[on, 1] >> 6] = np.uint64(1) << (yx[on, 1] & 63).astype(np.uint64)
+        if far_first and N > 1:
+            tg = self._own_targets(pas, tg, front)
+        need = np.where(on, np.minimum(N, np.bitwise_count(tg).sum((1, 2), dtype=np.int64)), 0)
         visited, layers = front.copy(), [front]
         found = np.zeros(M, np.int64)
         while (found < need).any():  # BFS from every agent until it has reached enough targets
@@ -1938,6 +1940,21 @@ class GridWorldCore:
         has_goal = dist > 0
         move = FIRST_STEP[np.where(has_goal, gy - yx[:, 0], 0) + 1, np.where(has_goal, gx - yx[:, 1], 0) + 1]
         return move.reshape(B, N), ((found == 0) & working.ravel()).reshape(B, N)
+
+    def _own_targets(self, passable: np.ndarray, targets: np.ndarray, cells: np.ndarray) -> np.ndarray:
+        """Each agent's targets in its Voronoi region: those no working teammate reaches in fewer steps over the
+        passable cells (a cell as near to two agents is in both regions); an agent with none there keeps them
+        all. passable, targets: (B * N, H, words), each agent's copy of its world's; cells: each working agent's
+        cell, an empty board for the others."""
+        shape = (self.B, self.N) + passable.shape[1:]
+        passable, front = passable.reshape(shape), cells.reshape(shape)
+        region, reached = front.copy(), np.bitwise_or.reduce(front, 1)
+        while front.any():  # the agents' breadth-first searches grow together; a cell goes to those that reach it first
+            front = _dilate(front) & passable & ~reached[:, None]
+            region |= front
+            reached |= np.bitwise_or.reduce(front, 1)
+        own = targets & region.reshape(targets.shape)
+        return np.where((np.bitwise_count(own).sum((1, 2)) > 0)[:, None, None], own, targets)
 
     def _steps_from_start(self, passable: np.ndarray) -> np.ndarray:
         """Steps from the agents' starting cells over the passable cells (bitboards, (B, H, words)), (B, H, W); a

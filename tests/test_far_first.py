@@ -2,8 +2,8 @@
 
 Among the nearest points of interest it takes, with dead-ends-first, one with no target neighbour (a hole if left)
 first, then the one with the fewest (target neighbours - steps from the start); without dead-ends-first the most
-steps from the start; then the first in row-major order. In a team also minus the steps to the nearest working
-teammate (by hand). Checked against
+steps from the start; then the first in row-major order. In a team also minus twice the mean steps to the working
+teammates, and only targets in the agent's Voronoi region while it has any (by hand). Checked against
 a plain breadth-first reference on part-walked maps: the next cell the heuristic covers is the reference's choice.
 The rollout's walkers take the same moves (tests/test_walkers.py).
 """
@@ -133,6 +133,24 @@ def test_in_a_team_far_first_weighs_the_mean_steps_to_every_teammate_by_hand():
     assert core.heuristic_actions(False, True, True)[0, 0] == gw.WEST
     core.frozen[0, 2:] = core.any_frozen = True
     assert core.heuristic_actions(False, False, True)[0, 0] == gw.EAST
+
+
+def test_in_a_team_far_first_chases_only_targets_in_the_agents_voronoi_region_by_hand():
+    """A 1x9 corridor, agent 0 at column 3, agent 1 at column 6; columns 1-4 and 6 covered, so the points of
+    interest are 0, 5, 7 and 8. Without dead-ends-first agent 1 takes 7 (5 is two steps from agent 0, 7 four:
+    -1 - 2 x 4 < -1 - 2 x 2) and the claims would leave 5 (two steps) to agent 0, ahead of 0 (three). But 5 is one
+    step from agent 1: agent 0's region is columns 0-4, so it goes W, to 0. With column 0 covered too its region
+    holds no point of interest, it keeps them all and goes E, to 5."""
+    moves = []
+    for zero_covered in (False, True):
+        covered = np.zeros((1, 9), bool)
+        covered[0, [0, 1, 2, 3, 4, 6] if zero_covered else [1, 2, 3, 4, 6]] = True
+        s = gw.Scenario(np.zeros((1, 9), bool), np.array([[0, 3], [0, 6]]), covered)
+        core = gw.GridWorldCore(gw.EnvConfig(load_state=True, number_agents=2, battery_factor=1e6), 1)
+        core.configure(scenarios=[cc.with_starts(s)])
+        core.reset()
+        moves.append(core.heuristic_actions(False, False, True)[0].tolist())
+    assert moves == [[gw.WEST, gw.EAST], [gw.EAST, gw.EAST]]
 
 
 def test_greedy_far_first_planner_covers_every_map():
