@@ -624,3 +624,17 @@ def test_reward_structures_give_the_mean_over_seeds_with_a_t_interval():
     assert "| greedy | — | 1 | 150 | 0.604 | — | 100% |" in text
     assert "| cooperative | 0.25 | 3 | 150 | 0.600 | 0.352 – 0.848 | 100% |" in text
     assert "30,000 environment steps from `models/rainbow_cpp.pt`" in text
+
+
+def test_the_faulty_agent_table_gives_the_time_save_over_the_maps_not_walled_off():
+    """A walled-off map runs to its step limit: its time-save would swamp the mean, so the table has a column
+    without those maps (by hand: two maps, one walled off). JSON collected before the key: no column."""
+    mr = json.loads((RESULTS / "rainbow_marl.json").read_text())
+    mr["agents"] = {"1": {**mr["agents"]["1"], "time_save": 1.1}, "2": {**mr["agents"]["2"], "time_save": 0.55, "maps": 2}}
+    mr["faulty"] = {"2": {"time_save": (0.8 + 9.0) / 2, "completion": 0.5, "walled_off": 1, "completion_reachable": 1.0,
+                          "time_save_reachable": 0.8}}
+    rows = [line for line in "\n".join(report.marl_lines(mr, {})).splitlines() if line.startswith("| 2 | 0.550 |")]
+    assert rows == ["| 2 | 0.550 | 4.900 | 50% | 1.100 | 1 of 2 | 100% | 0.800 |"]
+    del mr["faulty"]["2"]["time_save_reachable"]
+    rows = [line for line in "\n".join(report.marl_lines(mr, {})).splitlines() if line.startswith("| 2 | 0.550 |")]
+    assert rows == ["| 2 | 0.550 | 4.900 | 50% | 1.100 | 1 of 2 | 100% |"]
