@@ -1818,7 +1818,8 @@ class GridWorldCore:
         known passable cells) come first, so the walk sweeps away from the start and ends near it, as the
         wavefront planner's does; in a team also those farther from the agent's working teammates (twice the mean
         Manhattan steps to them), and an agent chases only targets no working teammate is nearer to (its Voronoi
-        region, in steps over the known passable cells) while it has any, so the team spreads out. With both, a
+        region, in steps over the known passable cells) while it has any, then those of the region with the most,
+        so the team spreads out. With both, a
         target with no target neighbour (a hole if left) first, then the fewest (target neighbours - steps from
         the start - 2 x mean steps to the teammates). The row-major or random order then breaks the remaining
         ties."""
@@ -1944,9 +1945,9 @@ class GridWorldCore:
 
     def _own_targets(self, passable: np.ndarray, targets: np.ndarray, cells: np.ndarray) -> np.ndarray:
         """Each agent's targets in its Voronoi region: those no working teammate reaches in fewer steps over the
-        passable cells (a cell as near to two agents is in both regions); an agent with none there keeps them
-        all. passable, targets: (B * N, H, words), each agent's copy of its world's; cells: each working agent's
-        cell, an empty board for the others."""
+        passable cells (a cell as near to two agents is in both regions). An agent with none there helps the agent
+        with the most (its targets: that agent's), else keeps them all. passable, targets: (B * N, H, words), each
+        agent's copy of its world's; cells: each working agent's cell, an empty board for the others."""
         shape = (self.B, self.N) + passable.shape[1:]
         passable, front = passable.reshape(shape), cells.reshape(shape)
         region, reached = front.copy(), np.bitwise_or.reduce(front, 1)
@@ -1955,6 +1956,10 @@ class GridWorldCore:
             region |= front
             reached |= np.bitwise_or.reduce(front, 1)
         own = targets & region.reshape(targets.shape)
+        count = np.bitwise_count(own).sum((1, 2)).reshape(self.B, self.N)
+        busiest = region[np.arange(self.B), count.argmax(1)]  # the lower index on a tie
+        helping = targets & np.repeat(busiest, self.N, 0)
+        own = np.where((count == 0).reshape(-1, 1, 1), helping, own)
         return np.where((np.bitwise_count(own).sum((1, 2)) > 0)[:, None, None], own, targets)
 
     def _steps_from_start(self, passable: np.ndarray) -> np.ndarray:

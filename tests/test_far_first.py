@@ -3,7 +3,8 @@
 Among the nearest points of interest it takes, with dead-ends-first, one with no target neighbour (a hole if left)
 first, then the one with the fewest (target neighbours - steps from the start); without dead-ends-first the most
 steps from the start; then the first in row-major order. In a team also minus twice the mean steps to the working
-teammates, and only targets in the agent's Voronoi region while it has any (by hand). Checked against
+teammates, and only targets in the agent's Voronoi region while it has any, else in the busiest teammate's (by
+hand). Checked against
 a plain breadth-first reference on part-walked maps: the next cell the heuristic covers is the reference's choice.
 The rollout's walkers take the same moves (tests/test_walkers.py).
 """
@@ -151,6 +152,21 @@ def test_in_a_team_far_first_chases_only_targets_in_the_agents_voronoi_region_by
         core.reset()
         moves.append(core.heuristic_actions(False, False, True)[0].tolist())
     assert moves == [[gw.WEST, gw.EAST], [gw.EAST, gw.EAST]]
+
+
+def test_in_a_team_an_agent_with_an_empty_region_helps_the_one_with_the_most_left_by_hand():
+    """A 1x13 corridor, agent 0 at column 5, agent 1 at 1, agent 2 at 10; columns 3-8 covered, so the points of
+    interest are 0 and 2 (agent 1's region: 2 of them) and 9, 11 and 12 (agent 2's: 3). Agent 0's region (columns
+    3-7) holds none, so it helps agent 2, the busiest: E, to 9 (four steps), though 2 (three steps) is nearer and
+    agent 1 claims 0, not 2 (farther from its teammates). With or without dead-ends-first."""
+    covered = np.zeros((1, 13), bool)
+    covered[0, 3:9] = True
+    s = gw.Scenario(np.zeros((1, 13), bool), np.array([[0, 5], [0, 1], [0, 10]]), covered)
+    core = gw.GridWorldCore(gw.EnvConfig(load_state=True, number_agents=3, battery_factor=1e6), 1)
+    core.configure(scenarios=[cc.with_starts(s)])
+    core.reset()
+    assert core.heuristic_actions(False, False, True)[0].tolist() == [gw.EAST, gw.WEST, gw.EAST]
+    assert core.heuristic_actions(False, True, True)[0, 0] == gw.EAST
 
 
 def test_greedy_far_first_planner_covers_every_map():
