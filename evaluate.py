@@ -440,9 +440,14 @@ def summarize(rows: list[dict], families: dict[str, str] | None = None) -> dict:
     sizes = sorted({r["size"] for r in rows}, key=lambda z: tuple(map(int, z.split("x"))))
     out = {"all": stats(rows), "by_size": {z: stats([r for r in rows if r["size"] == z]) for z in sizes}}
     if families:
-        out["by_family"] = {f: stats([r for r in rows if families.get(r["map"]) == f])
+        out["by_family"] = {f: stats(of_family(rows, families, f))
                             for f in dict.fromkeys(families.get(r["map"]) for r in rows) if f is not None}
     return out
+
+
+def of_family(rows: list[dict], families: dict[str, str], family: str) -> list[dict]:
+    """The episodes whose map is of `family` (families: dataset_families)."""
+    return [r for r in rows if families.get(r["map"]) == family]
 
 
 def dataset_families(path: str | None) -> dict[str, str]:
@@ -491,7 +496,7 @@ def comparison(results: dict[str, list[dict]], families: dict[str, str] | None =
     key = "overlap" if table["agents"] == 1 else "time_save"  # several agents: §7.5's time-save factor
     groups = list(dict.fromkeys(families[r["map"]] for r in first if r["map"] in families)) if families else []
     if groups:
-        table["by_family"] = {f: {p: means([r for r in rows if families.get(r["map"]) == f])
+        table["by_family"] = {f: {p: means(of_family(rows, families, f))
                                   for p, rows in results.items()} for f in groups}
         lines += ["", f"Mean {key.replace('_', '-')} by map family (completion when below 100%):", "",
                   "| family | episodes | " + " | ".join(results) + " |", "|---|---|" + "---|" * len(results)]
@@ -586,7 +591,7 @@ def _write(args: Args, episodes: list[tuple[str, Scenario]], results: dict[str, 
              os.path.join(args.out, "summary.json"): partial(_write_json, data=summary)}
     lines = [describe(args.policy, rows)]
     if families:
-        lines += ["  " + describe(f, [r for r in rows if families.get(r["map"]) == f]) for f in summary["by_family"]]
+        lines += ["  " + describe(f, of_family(rows, families, f)) for f in summary["by_family"]]
     if len(results) > 1:
         table, text = comparison(results, families)
         files[os.path.join(args.out, "compare.json")] = partial(_write_json, data=table)
