@@ -635,6 +635,9 @@ def test_the_faulty_agent_table_gives_the_time_save_over_the_maps_not_walled_off
                           "time_save_reachable": 0.8}}
     rows = [line for line in "\n".join(report.marl_lines(mr, {})).splitlines() if line.startswith("| 2 | 0.550 |")]
     assert rows == ["| 2 | 0.550 | 4.900 | 50% | 1.100 | 1 of 2 | 100% | 0.800 |"]
+    mr["faulty"]["2"]["completion"] = 209 / 210  # rounds to 100% at no decimal: one decimal then
+    rows = [line for line in "\n".join(report.marl_lines(mr, {})).splitlines() if line.startswith("| 2 | 0.550 |")]
+    assert rows == ["| 2 | 0.550 | 4.900 | 99.5% | 1.100 | 1 of 2 | 100% | 0.800 |"]
     del mr["faulty"]["2"]["time_save_reachable"]
     rows = [line for line in "\n".join(report.marl_lines(mr, {})).splitlines() if line.startswith("| 2 | 0.550 |")]
-    assert rows == ["| 2 | 0.550 | 4.900 | 50% | 1.100 | 1 of 2 | 100% |"]
+    assert rows == ["| 2 | 0.550 | 4.900 | 99.5% | 1.100 | 1 of 2 | 100% |"]
