@@ -1819,10 +1819,9 @@ class GridWorldCore:
         wavefront planner's does; in a team also those farther from the agent's working teammates (twice the mean
         Manhattan steps to them), and an agent chases only targets no working teammate is nearer to (its Voronoi
         region, in steps over the known passable cells) while it has any, then those of the region with the most,
-        so the team spreads out. With both, a
-        target with no target neighbour (a hole if left) first, then the fewest (target neighbours - steps from
-        the start - 2 x mean steps to the teammates). The row-major or random order then breaks the remaining
-        ties."""
+        so the team spreads out. With both, a target with no target neighbour (a hole if left) first, then the
+        fewest (target neighbours - steps from the start - 2 x mean steps to the teammates). The row-major or
+        random order then breaks the remaining ties."""
         B, H, W, c = self.B, self.H, self.W, self.c
         inner = (slice(None), slice(c, c + H), slice(c, c + W))
         seen = self.seen[inner]

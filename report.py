@@ -825,15 +825,15 @@ def marl_lines(mr: dict, rewards: dict) -> list[str]:
     if mr["faulty"]:  # collected since the walled-off count exists: two more columns
         walled_on = all("walled_off" in f for f in mr["faulty"].values())
         walled_head = ["maps walled off by the frozen agent", "completed (the others)"] if walled_on else []
-        if walled_on and all("time_save_reachable" in f for f in mr["faulty"].values()):
-            walled_head.append("N, one faulty (the others)")  # a walled-off map runs to its step limit
+        rest_on = walled_on and all("time_save_reachable" in f for f in mr["faulty"].values())
+        walled_head += ["N, one faulty (the others)"] if rest_on else []  # a walled-off map runs to its step limit
 
         def walled(n, f):
             if not walled_on:
                 return []
-            done, rest = f["completion_reachable"], f.get("time_save_reachable", False)
-            return ([f"{f['walled_off']} of {mr['agents'][n]['maps']}", "—" if done is None else f"{100 * done:.0f}%"]
-                    + ([] if rest is False else ["—" if rest is None else f"{rest:.3f}"]))
+            done, rest = f["completion_reachable"], f.get("time_save_reachable")
+            return ([f"{f['walled_off']} of {mr['agents'][n]['maps']}", "—" if done is None else _share(done)]
+                    + (["—" if rest is None else f"{rest:.3f}"] if rest_on else []))
 
         lines += [
             "", f"Faulty agent (§7.5.3.3, Fig. 7.12): the last agent freezes once "
