@@ -1818,10 +1818,11 @@ class GridWorldCore:
         known passable cells) come first, so the walk sweeps away from the start and ends near it, as the
         wavefront planner's does; in a team also those farther from the agent's working teammates (twice the mean
         Manhattan steps to them), and an agent chases only targets no working teammate is nearer to (its Voronoi
-        region, in steps over the known passable cells) while it has any, then those of the region with the most,
-        so the team spreads out. With both, a target with no target neighbour (a hole if left) first, then the
-        fewest (target neighbours - steps from the start - 2 x mean steps to the teammates). The row-major or
-        random order then breaks the remaining ties."""
+        region, in steps over the known passable cells; the far half of it first when it holds over twice the
+        team's mean) while it has any, then those of the region with the most, so the team spreads out. With
+        both, a target with no target neighbour (a hole if left) first, then the fewest (target neighbours - steps
+        from the start - 2 x mean steps to the teammates). The row-major or random order then breaks the
+        remaining ties."""
         B, H, W, c = self.B, self.H, self.W, self.c
         inner = (slice(None), slice(c, c + H), slice(c, c + W))
         seen = self.seen[inner]
@@ -1944,11 +1945,13 @@ class GridWorldCore:
 
     def _own_targets(self, passable: np.ndarray, targets: np.ndarray, cells: np.ndarray) -> np.ndarray:
         """Each agent's targets in its Voronoi region: those no working teammate reaches in fewer steps over the
-        passable cells (a cell as near to two agents is in both regions). An agent with none there helps the agent
-        with the most (its targets: that agent's), else keeps them all. passable, targets: (B * N, H, words), each
-        agent's copy of its world's; cells: each working agent's cell, an empty board for the others."""
+        passable cells (a cell as near to two agents is in both regions). An agent whose region holds more than
+        twice the team's mean takes its far half first (_far_half), and an agent with none there helps the agent
+        with the most (its targets: that agent's), else keeps them all. passable, targets: (B * N, H, words),
+        each agent's copy of its world's; cells: each working agent's cell, an empty board for the others."""
         shape = (self.B, self.N) + passable.shape[1:]
         passable, front = passable.reshape(shape), cells.reshape(shape)
+        agents = front.copy()
         region, reached = front.copy(), np.bitwise_or.reduce(front, 1)
         while front.any():  # the agents' breadth-first searches grow together; a cell goes to those that reach it first
             front = _dilate(front) & passable & ~reached[:, None]
@@ -1956,10 +1959,38 @@ class GridWorldCore:
             reached |= np.bitwise_or.reduce(front, 1)
         own = targets & region.reshape(targets.shape)
         count = np.bitwise_count(own).sum((1, 2)).reshape(self.B, self.N)
+        working = np.bitwise_count(agents).sum((2, 3)) > 0
+        mean = np.where(working, count, 0).sum(1, keepdims=True) / np.maximum(working.sum(1, keepdims=True), 1)
+        overloaded = (working & (count > 2 * mean)).ravel()  # never with two agents: one would hold over all
+        if overloaded.any():
+            far = self._far_half(passable, agents, own.reshape(shape))
+            far_too = overloaded & (np.bitwise_count(far).sum((1, 2)) > 0)
+            own = np.where(far_too[:, None, None], far, own)
         busiest = region[np.arange(self.B), count.argmax(1)]  # the lower index on a tie
         helping = targets & np.repeat(busiest, self.N, 0)
         own = np.where((count == 0).reshape(-1, 1, 1), helping, own)
         return np.where((np.bitwise_count(own).sum((1, 2)) > 0)[:, None, None], own, targets)
+
+    @staticmethod
+    def _far_half(passable: np.ndarray, agents: np.ndarray, own: np.ndarray) -> np.ndarray:
+        """Each agent's targets at least half as many steps (over the passable cells) from its nearest working
+        teammate as its farthest target is, (B * N, H, words): an overloaded agent heads for the part of its
+        region no teammate will reach soon and leaves the near part to those who run out of work (a team of
+        agents queueing behind one agent down a corridor to a large room is what it prevents). Measured from the
+        teammates, not from the agent itself, so the half does not move as the agent walks into it. passable:
+        (B, N, H, words); agents: each working agent's cell, (B, N, H, words); own: its targets, the same shape."""
+        front = np.bitwise_or.reduce(agents, 1)[:, None] & ~agents  # every agent's working teammates
+        seen, layers = front.copy(), [front & own]
+        while front.any():
+            front = _dilate(front) & passable & ~seen
+            seen |= front
+            layers.append(front & own)
+        layers = np.stack(layers)  # (L, B, N, H, words): each agent's targets by steps from its nearest teammate
+        hit = np.bitwise_count(layers).sum((3, 4)) > 0
+        farthest = len(layers) - 1 - np.argmax(hit[::-1], 0)
+        half = np.arange(len(layers))[:, None, None] >= np.ceil(farthest / 2)
+        far = np.bitwise_or.reduce(layers * half[..., None, None], 0) | (own & ~seen)  # no teammate reaches: far
+        return far.reshape((-1,) + own.shape[2:])
 
     def _steps_from_start(self, passable: np.ndarray) -> np.ndarray:
         """Steps from the agents' starting cells over the passable cells (bitboards, (B, H, words)), (B, H, W); a
