@@ -1962,35 +1962,36 @@ class GridWorldCore:
         working = np.bitwise_count(agents).sum((2, 3)) > 0
         mean = np.where(working, count, 0).sum(1, keepdims=True) / np.maximum(working.sum(1, keepdims=True), 1)
         overloaded = (working & (count > 2 * mean)).ravel()  # never with two agents: one would hold over all
-        if overloaded.any():
-            far = self._far_half(passable, agents, own.reshape(shape))
-            far_too = overloaded & (np.bitwise_count(far).sum((1, 2)) > 0)
-            own = np.where(far_too[:, None, None], far, own)
+        big = np.flatnonzero(overloaded)
+        if len(big):  # one search for each overloaded agent only
+            world = big // self.N
+            mates = np.bitwise_or.reduce(agents, 1)[world] & ~agents.reshape(own.shape)[big]
+            far = self._far_half(passable.reshape(own.shape)[big], mates, own[big])
+            far_too = np.bitwise_count(far).sum((1, 2)) > 0
+            own[big[far_too]] = far[far_too]
         busiest = region[np.arange(self.B), count.argmax(1)]  # the lower index on a tie
         helping = targets & np.repeat(busiest, self.N, 0)
         own = np.where((count == 0).reshape(-1, 1, 1), helping, own)
         return np.where((np.bitwise_count(own).sum((1, 2)) > 0)[:, None, None], own, targets)
 
     @staticmethod
-    def _far_half(passable: np.ndarray, agents: np.ndarray, own: np.ndarray) -> np.ndarray:
-        """Each agent's targets at least half as many steps (over the passable cells) from its nearest working
-        teammate as its farthest target is, (B * N, H, words): an overloaded agent heads for the part of its
-        region no teammate will reach soon and leaves the near part to those who run out of work (a team of
-        agents queueing behind one agent down a corridor to a large room is what it prevents). Measured from the
-        teammates, not from the agent itself, so the half does not move as the agent walks into it. passable:
-        (B, N, H, words); agents: each working agent's cell, (B, N, H, words); own: its targets, the same shape."""
-        front = np.bitwise_or.reduce(agents, 1)[:, None] & ~agents  # every agent's working teammates
-        seen, layers = front.copy(), [front & own]
+    def _far_half(passable: np.ndarray, mates: np.ndarray, own: np.ndarray) -> np.ndarray:
+        """An agent's targets at least half as many steps (over the passable cells) from its nearest working
+        teammate as its farthest target is, and those no teammate reaches: an overloaded agent heads for the part
+        of its region no teammate will reach soon and leaves the near part to those who run out of work (a team
+        queueing behind one agent down a corridor to a large room is what it prevents). Measured from the
+        teammates, not from the agent itself, so the half does not move as the agent walks into it. passable,
+        mates (the working teammates' cells), own (its targets): one board per agent, (M, H, words)."""
+        front, seen, layers = mates, mates.copy(), [mates & own]
         while front.any():
             front = _dilate(front) & passable & ~seen
             seen |= front
             layers.append(front & own)
-        layers = np.stack(layers)  # (L, B, N, H, words): each agent's targets by steps from its nearest teammate
-        hit = np.bitwise_count(layers).sum((3, 4)) > 0
+        layers = np.stack(layers)  # (L, M, H, words): each agent's targets by steps from its nearest teammate
+        hit = np.bitwise_count(layers).sum((2, 3)) > 0
         farthest = len(layers) - 1 - np.argmax(hit[::-1], 0)
-        half = np.arange(len(layers))[:, None, None] >= np.ceil(farthest / 2)
-        far = np.bitwise_or.reduce(layers * half[..., None, None], 0) | (own & ~seen)  # no teammate reaches: far
-        return far.reshape((-1,) + own.shape[2:])
+        half = np.arange(len(layers))[:, None] >= np.ceil(farthest / 2)
+        return np.bitwise_or.reduce(layers * half[..., None, None], 0) | (own & ~seen)
 
     def _steps_from_start(self, passable: np.ndarray) -> np.ndarray:
         """Steps from the agents' starting cells over the passable cells (bitboards, (B, H, words)), (B, H, W); a

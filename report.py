@@ -562,6 +562,11 @@ def _join(items: list[str]) -> str:
     return items[0] if len(items) == 1 else ", ".join(items[:-1]) + " and " + items[-1]
 
 
+def _share(x: float) -> str:
+    """A share as a percentage that reads 100% only when it is (209 of 210 maps: 99.5%)."""
+    return f"{100 * x:.0f}%" if x == 1 or 100 * x < 99.5 else f"{100 * x:.1f}%"
+
+
 def structured_lines(s: dict) -> list[str]:
     """The planners on structured_eval by map family and size band, rollout against the others and against LKH."""
     plans, families = s["planners"], list(s["maps"])
@@ -569,7 +574,7 @@ def structured_lines(s: dict) -> list[str]:
     n_maps = sum(s["maps"].values())
 
     def cell(r):
-        return f"{r['overlap']:.3f}" + ("" if r["completion"] == 1 else f" ({100 * r['completion']:.0f}% completed)")
+        return f"{r['overlap']:.3f}" + ("" if r["completion"] == 1 else f" ({_share(r['completion'])} completed)")
 
     lines = [
         f"`maps/structured_eval.npz` (`maps/make_datasets.py`), {s['per_band']} maps per family and size band "
@@ -577,7 +582,7 @@ def structured_lines(s: dict) -> list[str]:
         f"stored start; mean overlap (completion shown where below 100%), LKH ({s['lkh_time_limit_s']:.0f} s cap per "
         "map) the near-optimal reference.", "",
         table(["planner"] + families + ["all", "completed", "plan ms/map"],
-              [[n] + [cell(r[f]) for f in families] + [cell(r["all"]), f"{100 * r['all']['completion']:.0f}%",
+              [[n] + [cell(r[f]) for f in families] + [cell(r["all"]), _share(r['all']['completion']),
                                                        f"{r['all']['plan_ms_per_map']:.1f}"] for n, r in plans.items()])]
     if "rollout" in plans:
         ro = plans["rollout"]
@@ -595,7 +600,7 @@ def structured_lines(s: dict) -> list[str]:
         sentence = (f"Rollout is below every other planner but LKH ({', '.join(others)}) in {len(below)} of "
                     f"{len(families)} families" + (f"; tied in {_join(tied)}" if tied else "")
                     + (f"; above in {_join(above)}" if above else "")
-                    + f"; completion {100 * done:.0f}%" + (" in every family." if done == 1 else " at worst."))
+                    + f"; completion {_share(done)}" + (" in every family." if done == 1 else " at worst."))
         if "lkh" in plans:
             lk = plans["lkh"]
             gap = {f: ro[f]["overlap"] - lk[f]["overlap"] for f in families}
@@ -674,8 +679,8 @@ def sensor_lines(sr: dict | None) -> list[str]:
 
     def row(label, e):
         a, f, r, ff = (e[p] for p in SENSOR_POLICIES)
-        return [label, f"**{a['overlap']:.3f}**", f"{100 * a['completion']:.0f}%", f"{a['heuristic_share']:.2f}",
-                f"{f['overlap']:.3f}", f"{100 * f['completion']:.0f}%", f"{r['overlap']:.3f}", f"{ff['overlap']:.3f}"]
+        return [label, f"**{a['overlap']:.3f}**", _share(a['completion']), f"{a['heuristic_share']:.2f}",
+                f"{f['overlap']:.3f}", _share(f['completion']), f"{r['overlap']:.3f}", f"{ff['overlap']:.3f}"]
 
     m = sr["model"]
     stages = m.get("args", {}).get("stages") or "the built-in stages"
@@ -729,7 +734,7 @@ def rainbow_lines(rb: dict, c: dict) -> tuple[list[str], list[str], list[str]]:
         full += [f"Targets on sizes {first}-{last} (`report.REFERENCE`: "
                  f"{100 * REFERENCE['rainbow_cpp_completion']:.0f}% completion, mean overlap ≤ {goal} and below "
                  f"the greedy planner at every size): completion "
-                 f"{100 * min(rb['full'][z]['completion'] for z in target):.0f}% at worst; mean overlap ≤ {goal} at "
+                 f"{_share(min(rb['full'][z]['completion'] for z in target))} at worst; mean overlap ≤ {goal} at "
                  f"{sum(rb['full'][z]['overlap'] <= goal for z in target)} of {len(target)} sizes (worst "
                  f"{rb['full'][worst]['overlap']:.3f} at {worst}); below greedy at {below} of {len(target)}.", ""]
     starts = sorted({len(v) for v in rb["external"].values()})
@@ -738,9 +743,9 @@ def rainbow_lines(rb: dict, c: dict) -> tuple[list[str], list[str], list[str]]:
         "completion; heuristic share = fraction of steps the fallback took.", "",
         table(["size", "rainbow + heuristic", "completed", "heuristic share", "rainbow alone (completed maps)",
                "completed", "greedy planner", "greedy-dead-ends planner"] + ["greedy-far-first planner"] * far,
-              [[z, f"{rb['full'][z]['overlap']:.3f}", f"{100 * rb['full'][z]['completion']:.0f}%",
+              [[z, f"{rb['full'][z]['overlap']:.3f}", _share(rb['full'][z]['completion']),
                 f"{rb['full'][z]['heuristic_share']:.2f}", f"{rb['full_no_heuristic'][z]['overlap_completed']:.3f}",
-                f"{100 * rb['full_no_heuristic'][z]['completion']:.0f}%", f"{rb['greedy'][z]['overlap']:.3f}",
+                _share(rb['full_no_heuristic'][z]['completion']), f"{rb['greedy'][z]['overlap']:.3f}",
                 f"{rb['greedy_dead_ends'][z]['overlap']:.3f}"] + ([f"{rb['greedy_far_first'][z]['overlap']:.3f}"] if far else [])
                for z in sizes]), "",
         f"![rainbow overlap by size]({FIGURES['rainbow_cpp']})", "",
@@ -758,7 +763,7 @@ def rainbow_lines(rb: dict, c: dict) -> tuple[list[str], list[str], list[str]]:
                  table(["family", "rainbow + heuristic", "completed", "heuristic share"] + ["greedy-far-first"] * far
                        + names,
                        [[f, f"**{rb['structured_eval'][f]['overlap']:.3f}**",
-                         f"{100 * rb['structured_eval'][f]['completion']:.0f}%",
+                         _share(rb['structured_eval'][f]['completion']),
                          f"{rb['structured_eval'][f]['heuristic_share']:.2f}"]
                         + ([f"{rb['greedy_far_first_structured'][f]['overlap']:.3f}"] if far else [])
                         + [f"{st['planners'][p][f]['overlap']:.3f}" for p in names] for f in rb["structured_eval"]])]
@@ -766,17 +771,12 @@ def rainbow_lines(rb: dict, c: dict) -> tuple[list[str], list[str], list[str]]:
     camera = rb[f"camera_r{r}"]
     sensor = [f"Camera, range r = {r}, the same model with the heuristic fallback, `cpp_eval` as above:", "",
               table(["size", "overlap", "completed"],
-                    [[z, f"{camera[z]['overlap']:.3f}", f"{100 * camera[z]['completion']:.0f}%"] for z in sizes])]
+                    [[z, f"{camera[z]['overlap']:.3f}", _share(camera[z]['completion'])] for z in sizes])]
     p = rb["p2p"]
     p2p = [f"The first {p['maps']:,} scenarios of `p2p_eval` (one point of interest), heuristic fallback on: "
            f"{100 * p['optimal']:.1f}% on a shortest path, {100 * p['completion']:.1f}% reached, "
            f"{p['mean_extra_steps']:.2f} steps beyond the shortest path on average."]
     return full, sensor, p2p
-
-
-def _share(x: float) -> str:
-    """A share as a percentage that reads 100% only when it is (209 of 210 maps: 99.5%)."""
-    return f"{100 * x:.0f}%" if x == 1 or 100 * x < 99.5 else f"{100 * x:.1f}%"
 
 
 def marl_lines(mr: dict, rewards: dict) -> list[str]:
@@ -800,7 +800,7 @@ def marl_lines(mr: dict, rewards: dict) -> list[str]:
         f"fallback on. {trained_on(m)}", ""]
     if met:
         lines += [f"Targets (`report.REFERENCE`, mean $t_{{sf}}$ on sizes {sizes}): {'; '.join(met)}. Completion "
-                  f"{100 * min(mr['agents'][n]['completion'] for n in agents):.0f}% at worst."
+                  f"{_share(min(mr['agents'][n]['completion'] for n in agents))} at worst."
                   + (f" Below the greedy planner at {len(below)} of the {len(several)} agent counts "
                      f"{several[0]}-{several[-1]}." if several else ""), ""]
     lines += [
@@ -811,7 +811,7 @@ def marl_lines(mr: dict, rewards: dict) -> list[str]:
               [[n, str(mr["agents"][n]["maps"]), f"{mr['agents'][n]['time_save']:.3f}",
                 f"{mr['agents'][n]['greedy']:.3f}", f"{mr['agents'][n]['greedy_dead_ends']:.3f}"]
                + ([f"{mr['agents'][n]['greedy_far_first']:.3f}"] if far else [])
-               + [f"{1 / int(n):.3f}", f"{100 * mr['agents'][n]['completion']:.0f}%",
+               + [f"{1 / int(n):.3f}", _share(mr['agents'][n]['completion']),
                   f"{mr['agents'][n]['heuristic_share']:.2f}"] for n in agents]), "",
         f"![rainbow_marl time-save factor]({FIGURES['rainbow_marl']})"]
     if "structured_eval" in mr:
@@ -864,7 +864,7 @@ def reward_lines(rewards: dict) -> list[str]:
         no_gain = gain is None or structure == "competitive"  # eq. 7.3 has no K
         rows.append([structure, "—" if no_gain else f"{gain:g}", str(len(t)), str(runs[0]["all"]["episodes"]),
                      f"{t.mean():.3f}", "—" if half is None else f"{t.mean() - half:.3f} – {t.mean() + half:.3f}",
-                     f"{100 * min(r['all']['completion_rate'] for r in runs):.0f}%"])
+                     _share(min(r['all']['completion_rate'] for r in runs))])
     trained = [s["model"] for s in rewards.values() if "model" in s]
     budget = ""
     if trained:
