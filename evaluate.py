@@ -472,6 +472,11 @@ def describe(policy: str, rows: list[dict]) -> str:
     if policy in LEARNED:
         share = sum(r["heuristic_steps"] for r in rows) / max(1, sum(r["steps"] * r["agents"] for r in rows))
         text += f", heuristic steps {100 * share:.1f}%"
+    walled = [r for r in rows if r.get("walled_off")]
+    if walled:  # --faulty-agent-at: no team completes these maps
+        others = [r for r in rows if not r.get("walled_off")]
+        text += f"; {len(walled)} walled off by the frozen agent" + (
+            f", completed {100 * np.mean([r['completed'] for r in others]):.0f}% of the others" if others else "")
     return text
 
 

@@ -1152,8 +1152,9 @@ def evaluate_policy(q: QNetwork, scenarios: list, frames: int, sensor: str = "fu
     the last agent freezes once this fraction of the points of interest is covered (§7.5.3.3).
     Returns per-episode arrays: gridworld's metrics, `agents`, `truncated`,
     `heuristic_steps` (agent-steps taken by the heuristic) and `walled_off` (the frozen agent left
-    uncovered cells no working agent can reach: no team completes such a map). A list given as `trajectories` is
-    extended with one (T + 1, N, 2) int array per scenario: the (row, col) of each of its N agents
+    uncovered cells no working agent can reach: no team completes such a map, and its episode ends, not
+    completed, once the working agents have covered every point of interest they can reach). A list given as
+    `trajectories` is extended with one (T + 1, N, 2) int array per scenario: the (row, col) of each of its N agents
     at every step from the start, T that episode's own steps. The observation and the frame count are
     the network's own (q.network(), on its device); `frames` counts only for a network without that
     record."""
@@ -1169,6 +1170,7 @@ def evaluate_policy(q: QNetwork, scenarios: list, frames: int, sensor: str = "fu
     stack = Stacker(B * N, frames, *frame_shape(observation)[::-1], hint=hint)
     stack.push(observe(core, hint, dead_ends_first, far_first), np.ones(B * N, bool))
     done, truncated, faulty, walled_off = (np.zeros(B, bool) for _ in range(4))
+    unreachable = np.zeros(B, np.int64)  # points of interest behind the frozen agent, counted when it freezes
     since_new, times_stuck, owed = (np.zeros((B, N), np.int64) for _ in range(3))
     steps, used = np.zeros(B, np.int64), np.zeros(B, np.int64)  # each world's own, not the waits after its end
     history = [core.agent_cells()] * 6  # cells at t-5 .. t
@@ -1208,7 +1210,9 @@ def evaluate_policy(q: QNetwork, scenarios: list, frames: int, sensor: str = "fu
                 due = np.flatnonzero(~faulty & ~done & (core.new_cells >= faulty_at * core.n_poi_start))
                 core.freeze(due, core.active[due].sum(1) - 1)
                 faulty[due] = True
-                walled_off[due] = core.unreachable_poi(due) > 0
+                unreachable[due] = core.unreachable_poi(due)
+                walled_off[due] = unreachable[due] > 0
+                done |= walled_off & (core.remaining <= unreachable)  # what the working agents can reach is covered
             stack.push(observe(core, hint, dead_ends_first, far_first), np.zeros(B * N, bool))
     q.reset_noise(True)
     if trajectories is not None:

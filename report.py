@@ -826,7 +826,7 @@ def marl_lines(mr: dict, rewards: dict) -> list[str]:
         walled_on = all("walled_off" in f for f in mr["faulty"].values())
         walled_head = ["maps walled off by the frozen agent", "completed (the others)"] if walled_on else []
         rest_on = walled_on and all("time_save_reachable" in f for f in mr["faulty"].values())
-        walled_head += ["N, one faulty (the others)"] if rest_on else []  # a walled-off map runs to its step limit
+        walled_head += ["N, one faulty (the others)"] if rest_on else []  # a walled-off map covers less: not comparable
 
         def walled(n, f):
             if not walled_on:

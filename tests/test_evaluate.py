@@ -207,3 +207,15 @@ def test_compare_runs_the_same_episodes(tmp_path, capsys):
     assert line in md and line in printed
     assert "| corridor.txt | 1 | 0.500 | 0.500 |" in md  # by map (2 maps <= 12): greedy and lkh both sweep 2 + 4
     assert not (tmp_path / "out" / "compare.png").exists()  # only with --video
+
+
+def test_the_summary_line_counts_walled_off_maps_apart():
+    """--faulty-agent-at: a map the frozen agent walls off cannot be completed, so the line gives the completion of
+    the others beside the count (by hand: one walled off, one of the other two completed)."""
+    def row(completed, walled_off):
+        return dict(size="10x10", overlap=0.1, time_save=0.6, steps=60, agents=2, heuristic_steps=0,
+                    completed=completed, walled_off=walled_off)
+    rows = [row(False, True), row(True, False), row(False, False)]
+    assert evaluate.describe("marl", rows).endswith(
+        "completed 33%, heuristic steps 0.0%; 1 walled off by the frozen agent, completed 50% of the others")
+    assert "walled off" not in evaluate.describe("marl", rows[1:])

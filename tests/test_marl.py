@@ -215,7 +215,8 @@ def test_faulty_agent_stays_put_and_the_others_finish():
 
 def test_a_frozen_agent_in_a_corridor_walls_off_the_cells_behind_it():
     """Corridor 0 . 1 . . with agent 1 frozen: cells (0, 3) and (0, 4) lie behind it, (0, 1) does not; frozen in the
-    open (a 2-row map), it walls nothing off. A team never completes a walled-off map: evaluate_policy says which."""
+    open (a 2-row map), it walls nothing off. A team never completes a walled-off map: evaluate_policy says which,
+    and ends that episode once the working agent has covered what it can reach, not at the step limit."""
     corridor = from_rows(["0.1.."])
     core = gw.GridWorldCore(gw.EnvConfig(load_state=True, load_random=False, number_agents=2), 2)
     core.configure(scenarios=[corridor, from_rows(["0.1..", "....."])])
@@ -228,6 +229,13 @@ def test_a_frozen_agent_in_a_corridor_walls_off_the_cells_behind_it():
     m = rm.evaluate_policy(q, [from_rows(["0...1...."]), from_rows(["0.1..", "....."])], 3, faulty_at=0.3)
     assert m["walled_off"].tolist() == [True, False]
     assert m["completed"].tolist() == [False, True]
+    assert m["truncated"].tolist() == [False, False]
+    paths = []
+    m = rm.evaluate_policy(q, [from_rows(["0...1...."])], 3, faulty_at=0.3, trajectories=paths)
+    columns = paths[0][:, :, 1]  # (T + 1, 2): the row is 0 throughout
+    frozen_at = columns[-1, 1]  # agent 1 froze there; the cells before it are agent 0's to cover
+    first_walked = [np.flatnonzero((columns == x).any(1))[0] for x in range(frozen_at)]
+    assert len(columns) - 1 == max(first_walked)  # the episode ends on the step that covers the last of them
 
 
 def test_the_heuristic_routes_around_a_frozen_agent():

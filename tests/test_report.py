@@ -627,8 +627,8 @@ def test_reward_structures_give_the_mean_over_seeds_with_a_t_interval():
 
 
 def test_the_faulty_agent_table_gives_the_time_save_over_the_maps_not_walled_off():
-    """A walled-off map runs to its step limit: its time-save would swamp the mean, so the table has a column
-    without those maps (by hand: two maps, one walled off). JSON collected before the key: no column."""
+    """A walled-off map ends with only what its working agents reach covered: its time-save is not comparable, so
+    the table has a column without those maps (by hand: two maps, one walled off). JSON collected before the key: no column."""
     mr = json.loads((RESULTS / "rainbow_marl.json").read_text())
     mr["agents"] = {"1": {**mr["agents"]["1"], "time_save": 1.1}, "2": {**mr["agents"]["2"], "time_save": 0.55, "maps": 2}}
     mr["faulty"] = {"2": {"time_save": (0.8 + 9.0) / 2, "completion": 0.5, "walled_off": 1, "completion_reachable": 1.0,
