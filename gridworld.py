@@ -1951,7 +1951,7 @@ class GridWorldCore:
         each agent's copy of its world's; cells: each working agent's cell, an empty board for the others."""
         shape = (self.B, self.N) + passable.shape[1:]
         passable, front = passable.reshape(shape), cells.reshape(shape)
-        agents = front.copy()
+        agents = front  # the loop below rebinds front, never writes into it
         region, reached = front.copy(), np.bitwise_or.reduce(front, 1)
         while front.any():  # the agents' breadth-first searches grow together; a cell goes to those that reach it first
             front = _dilate(front) & passable & ~reached[:, None]
@@ -1959,7 +1959,7 @@ class GridWorldCore:
             reached |= np.bitwise_or.reduce(front, 1)
         own = targets & region.reshape(targets.shape)
         count = np.bitwise_count(own).sum((1, 2)).reshape(self.B, self.N)
-        working = np.bitwise_count(agents).sum((2, 3)) > 0
+        working = self.active & ~self.frozen  # the agents with a cell on `cells`
         mean = np.where(working, count, 0).sum(1, keepdims=True) / np.maximum(working.sum(1, keepdims=True), 1)
         overloaded = (working & (count > 2 * mean)).ravel()  # never with two agents: one would hold over all
         big = np.flatnonzero(overloaded)

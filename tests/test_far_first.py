@@ -184,7 +184,7 @@ def test_in_a_team_an_overloaded_agent_takes_the_far_half_of_its_region_first_by
     core.reset()
     assert core.heuristic_actions(False, False, True)[0, 0] == gw.EAST
     assert core.heuristic_actions(False, True, True)[0, 0] == gw.EAST
-    core.frozen[0, 2] = core.any_frozen = True
+    core.freeze([0], 2)
     assert core.heuristic_actions(False, True, True)[0, 0] == gw.WEST
 
 
