@@ -1169,7 +1169,7 @@ def evaluate_policy(q: QNetwork, scenarios: list, frames: int, sensor: str = "fu
     hint, far_first = bool(spec.get("hint")), bool(spec.get("far_first"))
     stack = Stacker(B * N, frames, *frame_shape(observation)[::-1], hint=hint)
     stack.push(observe(core, hint, dead_ends_first, far_first), np.ones(B * N, bool))
-    done, truncated, faulty, walled_off = (np.zeros(B, bool) for _ in range(4))
+    done, truncated, faulty = (np.zeros(B, bool) for _ in range(3))
     unreachable = np.zeros(B, np.int64)  # points of interest behind the frozen agent, counted when it freezes
     since_new, times_stuck, owed = (np.zeros((B, N), np.int64) for _ in range(3))
     steps, used = np.zeros(B, np.int64), np.zeros(B, np.int64)  # each world's own, not the waits after its end
@@ -1211,8 +1211,7 @@ def evaluate_policy(q: QNetwork, scenarios: list, frames: int, sensor: str = "fu
                 core.freeze(due, core.active[due].sum(1) - 1)
                 faulty[due] = True
                 unreachable[due] = core.unreachable_poi(due)
-                walled_off[due] = unreachable[due] > 0
-                done |= walled_off & (core.remaining <= unreachable)  # what the working agents can reach is covered
+                done |= (unreachable > 0) & (core.remaining <= unreachable)  # all the working agents reach is covered
             stack.push(observe(core, hint, dead_ends_first, far_first), np.zeros(B * N, bool))
     q.reset_noise(True)
     if trajectories is not None:
@@ -1220,7 +1219,7 @@ def evaluate_policy(q: QNetwork, scenarios: list, frames: int, sensor: str = "fu
     m = core.metrics()
     return {**m, "steps": steps, "time_save": steps / np.maximum(m["n_poi_start"], 1),
             "rho": steps / np.maximum(core.n_free, 1), "agents": core.active.sum(1),
-            "truncated": truncated, "heuristic_steps": used, "walled_off": walled_off}
+            "truncated": truncated, "heuristic_steps": used, "walled_off": unreachable > 0}
 
 
 # ----------------------------------------------------------------------------- training

@@ -1,6 +1,6 @@
 """Where a greedy-far-first team loses time: its overlap and idle steps against one agent's overlap on the same maps.
 
-    python benchmarks/team_overlap.py                       # 1 in 10 marl_eval layouts, N = 2 (~20 s)
+    python benchmarks/team_overlap.py                       # 1 in 10 marl_eval layouts, N = 2 (~30 s)
     python benchmarks/team_overlap.py --agents 5 --structured-every 21
 
 Greedy-far-first with claims (classical_cpp.plan) covers the scenarios of report.py's team sets: every --every-th
@@ -48,21 +48,17 @@ class Args:
 
 
 def shares(scenario: Scenario, paths: list[np.ndarray]) -> tuple[float, float, float, np.ndarray]:
-    """t_sf, overlap and idle as shares of the work, and the overlap by tenths of the makespan, of one plan."""
-    n = int((~scenario.obstacles).sum() - scenario.covered.sum())
-    T = max(len(p) for p in paths) - 1
-    covered = scenario.covered.copy()
-    overlap, moves, by_tenth = 0, 0, np.zeros(10)
-    for t in range(1, T + 1):
+    """t_sf, overlap and idle as shares of the work (gridworld's counts: classical_cpp.replay), and the overlap by
+    tenths of the makespan, of one plan."""
+    m = cc.replay(scenario, paths)
+    n, T, N = m["n_poi_start"], m["steps"], len(paths)
+    covered, by_tenth = scenario.covered.copy(), np.zeros(10)
+    for t in range(1, T + 1):  # which step each revisit came at
         for p in paths:
             if t < len(p) and (p[t] != p[t - 1]).any():
-                moves += 1
-                if covered[p[t][0], p[t][1]]:
-                    overlap += 1
-                    by_tenth[min(9, 10 * (t - 1) // T)] += 1
+                by_tenth[min(9, 10 * (t - 1) // T)] += covered[p[t][0], p[t][1]]
                 covered[p[t][0], p[t][1]] = True
-    N = len(paths)
-    return T / n, overlap / n, (N * T - moves) / n, by_tenth / n
+    return T / n, m["revisits"] / n, (N * T - m["revisits"] - m["new_cells"]) / n, by_tenth / n
 
 
 def main(args: Args) -> None:
