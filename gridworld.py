@@ -964,6 +964,31 @@ def _path_tables(free: np.ndarray, Wp: int) -> tuple[np.ndarray, np.ndarray, np.
     return row, dist, first.astype(np.int16)
 
 
+def _symmetric(a: np.ndarray, k: int) -> np.ndarray:
+    """Boards (..., H, W) in the k-th of the square's 8 symmetries: transposed for k >= 4, then turned k % 4
+    quarter turns (np.rot90). The first 2 and the first 4 mix row-first and column-first scans (row-major ties)."""
+    if k >= 4:
+        a = np.swapaxes(a, -1, -2)
+    return np.ascontiguousarray(np.rot90(a, k % 4, axes=(-2, -1)))
+
+
+def _symmetric_cells(cells: np.ndarray, k: int, H: int, W: int) -> np.ndarray:
+    """Cells (n, 2) of H x W boards where _symmetric(board, k) has them."""
+    y, x = cells[:, 0], cells[:, 1]
+    if k >= 4:
+        y, x, H, W = x, y, W, H
+    for _ in range(k % 4):  # a quarter turn puts (y, x) at (W - 1 - x, y) of a W x H board
+        y, x, H, W = W - 1 - x, y, W, H
+    return np.stack([y, x], 1)
+
+
+def _symmetric_moves(k: int) -> np.ndarray:
+    """m[a]: the move of _symmetric(board, k) that is move a (N, S, W, E) of the board."""
+    d = ACTION_DELTAS[:4]
+    turned = _symmetric_cells(d + 1, k, 3, 3) - 1  # the moves as cells around the centre of a 3 x 3 board
+    return np.array([int(np.flatnonzero((d == t).all(1))[0]) for t in turned])
+
+
 class _Walkers:
     """Single agents following the deterministic navigation heuristic (GridWorldCore.heuristic_actions with
     random_ties=False, one agent, full view) on bare maps, in lockstep: the rollouts' tries. A map is its free
@@ -2007,7 +2032,7 @@ class GridWorldCore:
         return steps
 
     def rollout_actions(self, worlds=None, dead_ends_first: bool = True, max_steps: int | None = None,
-                        view: str = "full", costs: bool = False, far_first: bool = False):
+                        view: str = "full", costs: bool = False, far_first: bool = False, symmetries: int = 1):
         """The one-step rollout (Bertsekas) of the deterministic heuristic (random_ties=False; greedy-dead-ends
         by default) for one agent, batched: in each given world (all by default; a bool mask or indices) try
         each move, finish each try with the heuristic and take the move with the fewest total steps (the
@@ -2024,11 +2049,18 @@ class GridWorldCore:
         core is not changed (nor its random stream). With costs=True every try runs on to its end and it also
         returns (len(worlds), 4) steps to cover the map after each first move, that move included (max_steps
         where the heuristic cannot finish, -1 for a move not tried: blocked, or a world's only move). With
-        far_first the heuristic (the base and the tries) takes far-first ties (heuristic_actions)."""
+        far_first the heuristic (the base and the tries) takes far-first ties (heuristic_actions).
+
+        With symmetries k > 1 the tries also run in k - 1 mirrored or turned copies of each world (_symmetric's
+        order) and a move's cost is its mean over the k copies (costs: floats). The
+        heuristic's last tie order (row-major) is arbitrary, and one copy's cheapest move is another's at only ~84%
+        of the states where they differ; the mean is a steadier label (benchmarks/tie_features.py)."""
         if self.N != 1:
             raise ValueError(f"rollout_actions plans for one agent, the worlds have {self.N}")
         if view not in ("full", "known"):
             raise ValueError(f"rollout_actions: view must be 'full' or 'known', got {view!r}")
+        if symmetries not in (1, 2, 4, 8):
+            raise ValueError(f"rollout_actions: symmetries must be 1, 2, 4 or 8, got {symmetries}")
         w = self._world_indices(worlds)
         n, K = len(w), 4
         if n == 0:
@@ -2043,6 +2075,28 @@ class GridWorldCore:
         agent = self.active[w, 0] & ~self.frozen[w, 0]
         cells = np.where(agent[:, None], self.agent_cells()[w, 0], 0)  # an absent agent is parked off the map
         start = self.start[inner] if far_first else None
+        out, steps, base = self._rollout_tries(w, free, covered, cells, agent, start, dead_ends_first, view,
+                                               max_steps, costs or symmetries > 1)
+        if symmetries == 1:
+            return (out, steps) if costs else out
+        total = steps.astype(np.float64)
+        for k in range(1, symmetries):
+            turned = [None if a is None else _symmetric(a, k) for a in (free, covered, start)]
+            _, more, _ = self._rollout_tries(w, turned[0], turned[1], _symmetric_cells(cells, k, H, W), agent,
+                                             turned[2], dead_ends_first, view, max_steps, True)
+            total += more[:, _symmetric_moves(k)]
+        mean = total / symmetries  # -1 where the move is not a try, in every copy alike
+        tried = mean >= 0
+        decided = tried.sum(1) >= 2
+        priority = np.where(np.arange(K) == base[:, None], -1, np.arange(K))  # ties: the heuristic's, then N, S, W, E
+        order = np.lexsort((priority, np.where(tried, mean, np.inf)), axis=1)
+        out = np.where(decided, order[:, 0], out)
+        return (out, mean) if costs else out
+
+    def _rollout_tries(self, w, free, covered, cells, agent, start, dead_ends_first, view, max_steps, costs):
+        """rollout_actions on given boards (n, H, W) of the worlds w: its actions, its costs (with costs) and the
+        heuristic's own moves."""
+        n, K, H, W = len(w), 4, self.H, self.W
         walkers = _Walkers(free, free & ~covered, cells, dead_ends_first, start=start)
         if view == "full":  # the map of an episode does not change: its tables serve every later call
             walkers.tables = self._path_tables_of(walkers.free, walkers.Wp)
@@ -2081,7 +2135,7 @@ class GridWorldCore:
             if len(owner) == 0:
                 break
             walkers.step(move)
-        return (out, steps) if costs else out
+        return out, steps, base
 
     def _path_tables_of(self, free: np.ndarray, Wp: int) -> list:
         """_path_tables of each flat bordered map (n, P), kept between calls by map. A map over PATH_TABLE_CELLS

@@ -59,6 +59,9 @@ class Args:
     """Adam steps of the fit (full batch)"""
     cpu: int = 0
     """the CPU to pin to (-1: no pinning)"""
+    symmetries: int = 1
+    """a move's cost is its mean over this many mirrored or turned copies of the world (1, 2, 4, 8:
+    GridWorldCore.rollout_actions): the label without the heuristic's arbitrary row-major last tie"""
 
 
 def shift(a: np.ndarray, dy: int, dx: int, fill) -> np.ndarray:
@@ -135,7 +138,8 @@ def collect(args: Args) -> dict[str, np.ndarray]:
                 move = core.heuristic_actions(random_ties=False, dead_ends_first=True, far_first=True)[:, 0]
                 pick, x, ok, hint = candidates(core, from_start, last, move)
                 if len(pick):
-                    _, cost = core.rollout_actions(worlds=pick, far_first=True, costs=True)
+                    _, cost = core.rollout_actions(worlds=pick, far_first=True, costs=True,
+                                                  symmetries=args.symmetries)
                     cost = np.where(ok, cost, 0).astype(float)
                     cheapest = np.where(ok, cost, np.inf).min(1)
                     differ = np.where(ok, cost, cheapest[:, None]).max(1) > cheapest
