@@ -211,6 +211,10 @@ class Args:
     evaluate.py's frontier-rollout); the same in full-information stages. The heuristic always acts on the known map"""
     policy_refresh: int = 10_000
     """--teacher policy-rollout: environment steps between copies of the online network into the rollout's policy"""
+    rollout_symmetries: int = 1
+    """--teacher rollout: a move's cost is its mean over this many mirrored or turned copies of the world (1, 2, 4, 8;
+    GridWorldCore.rollout_actions): labels without the heuristic's arbitrary row-major tie order, at that many
+    times the cost"""
     label_fraction: float = 1.0
     """--teacher rollout or policy-rollout: the chance that a world the agent acts in gets its margin label from the rollout (the
     others get the heuristic's), to bound the cost; worlds the teacher acts in always use the rollout"""
@@ -1109,6 +1113,10 @@ def check_teacher(args: Args) -> None:
                          "map, the policy on its observation)")
     if args.policy_refresh < 1:
         raise ValueError(f"--policy-refresh must be at least 1, got {args.policy_refresh}")
+    if args.rollout_symmetries not in (1, 2, 4, 8):
+        raise ValueError(f"--rollout-symmetries must be 1, 2, 4 or 8, got {args.rollout_symmetries}")
+    if args.rollout_symmetries > 1 and args.teacher != "rollout":
+        raise ValueError(f"--rollout-symmetries {args.rollout_symmetries} needs --teacher rollout")
 
 
 def rollout_labels(core: gridworld.GridWorldCore, label: np.ndarray, teach: np.ndarray, args: Args,
@@ -1124,7 +1132,7 @@ def rollout_labels(core: gridworld.GridWorldCore, label: np.ndarray, teach: np.n
         label[w] = policy_rollout_actions(core, w, policy, stack, args.heuristic_dead_ends, args.heuristic_far_first)
     else:
         label[w] = core.rollout_actions(w, args.heuristic_dead_ends, view=args.teacher_view,
-                                        far_first=args.heuristic_far_first)
+                                        far_first=args.heuristic_far_first, symmetries=args.rollout_symmetries)
     return label, w
 
 

@@ -189,6 +189,18 @@ def test_teacher_view_picks_the_map_the_rollout_plans_on(view):
     assert core.rollout_actions(view="full").tolist() != core.rollout_actions(view="known").tolist()
 
 
+def test_rollout_symmetries_label_by_the_mean_over_the_copies():
+    """--rollout-symmetries k labels with rollout_actions(symmetries=k), whose picks differ from the single copy's in
+    some of these worlds."""
+    core = core_of(random_maps(16, seed=5))
+    core.step(core.heuristic_actions(False, True))
+    heuristic = core.heuristic_actions(False, True)[:, 0]
+    args = rc.Args(teacher="rollout", rollout_symmetries=8, margin_loss=1.0)
+    label, _ = rc.rollout_labels(core, heuristic, np.ones(core.B, bool), args, np.random.default_rng(0))
+    assert label.tolist() == core.rollout_actions(symmetries=8).tolist()
+    assert label.tolist() != core.rollout_actions().tolist()
+
+
 def test_known_view_teacher_run_records_its_flag(tmp_path, monkeypatch, restore_sigint):
     monkeypatch.chdir(tmp_path)
     stages = tmp_path / "camera.yaml"
@@ -206,7 +218,10 @@ def test_known_view_teacher_run_records_its_flag(tmp_path, monkeypatch, restore_
                                      (dict(teacher="policy-rollout", teacher_view="known"),
                                       "--teacher-view known needs --teacher rollout"),
                                      (dict(teacher="policy-rollout", policy_refresh=0),
-                                      "--policy-refresh must be at least 1")])
+                                      "--policy-refresh must be at least 1"),
+                                     (dict(teacher="rollout", rollout_symmetries=3),
+                                      "--rollout-symmetries must be 1, 2, 4 or 8"),
+                                     (dict(rollout_symmetries=2), "--rollout-symmetries 2 needs --teacher rollout")])
 def test_bad_teacher_flags_are_one_line_errors(tmp_path, monkeypatch, restore_sigint, kw, msg):
     monkeypatch.chdir(tmp_path)
     with pytest.raises(ValueError, match=msg) as e:
