@@ -2054,7 +2054,10 @@ class GridWorldCore:
         With symmetries k > 1 the tries also run in k - 1 mirrored or turned copies of each world (_symmetric's
         order) and a move's cost is its mean over the k copies (costs: floats). The
         heuristic's last tie order (row-major) is arbitrary, and one copy's cheapest move is another's at only ~84%
-        of the states where they differ; the mean is a steadier label (benchmarks/tie_features.py)."""
+        of the states where they differ; the mean is a steadier label (benchmarks/label_symmetry.py). The move
+        taken is the cheapest by the mean among those whose steps in the world itself are no more than the
+        heuristic's move's: each step then shortens the heuristic's own steps to the end, so the walk is never
+        longer than the heuristic's (a mean alone can send an agent back and forth)."""
         if self.N != 1:
             raise ValueError(f"rollout_actions plans for one agent, the worlds have {self.N}")
         if view not in ("full", "known"):
@@ -2086,8 +2089,9 @@ class GridWorldCore:
                                              turned[2], dead_ends_first, view, max_steps, True)
             total += more[:, _symmetric_moves(k)]
         mean = total / symmetries  # -1 where the move is not a try, in every copy alike
-        tried = mean >= 0
-        decided = tried.sum(1) >= 2
+        decided = (mean >= 0).sum(1) >= 2
+        own = steps[np.arange(n), np.minimum(base, K - 1)]
+        tried = (steps >= 0) & (steps <= own[:, None])  # no dearer than the heuristic's move in this world itself
         priority = np.where(np.arange(K) == base[:, None], -1, np.arange(K))  # ties: the heuristic's, then N, S, W, E
         order = np.lexsort((priority, np.where(tried, mean, np.inf)), axis=1)
         out = np.where(decided, order[:, 0], out)

@@ -58,12 +58,35 @@ def test_costs_are_the_mean_over_worlds_built_from_the_mirrored_maps():
         _, cost = world([turned(s, k) for s in scenarios]).rollout_actions(far_first=True, costs=True)
         copies.append(cost[:, gw._symmetric_moves(k)])
     assert np.allclose(mean, np.mean(copies, 0))
-    tried = mean >= 0
-    decided = tried.sum(1) >= 2
-    cheapest = np.where(tried, mean, np.inf).min(1)
-    assert (mean[np.arange(len(action)), action][decided] == cheapest[decided]).all()
+    own = world(scenarios).heuristic_actions(random_ties=False, dead_ends_first=True, far_first=True)[:, 0]
+    rows = np.arange(len(action))
+    safe = (copies[0] >= 0) & (copies[0] <= copies[0][rows, own][:, None])  # no dearer than its move in the world
+    decided = (mean >= 0).sum(1) >= 2
+    cheapest = np.where(safe, mean, np.inf).min(1)
+    assert (mean[rows, action][decided] == cheapest[decided]).all() and safe[rows, action][decided].all()
     four = world(scenarios).rollout_actions(far_first=True, costs=True, symmetries=4)[1]
     assert np.allclose(four, np.mean(copies[:4], 0))
+
+
+@pytest.mark.parametrize("family", ["random", "maze"])
+def test_walks_by_the_mean_are_never_longer_than_the_heuristics(family):
+    """Each step shortens the heuristic's own steps to the end, so every map is covered within them."""
+    config = gw.EnvConfig(size=10, min_size=6, random_size=True, map_family=family, number_obstacles=15,
+                          obstacles_random=True, battery_factor=1e6)
+    steps = []
+    for rule in ("heuristic", "mean"):
+        core = gw.GridWorldCore(config, 8, seed=21)
+        core.reset()
+        taken = np.zeros(core.B, np.int64)
+        while (core.remaining > 0).any():
+            live = core.remaining > 0
+            move = (core.rollout_actions(far_first=True, symmetries=4) if rule == "mean" else
+                    core.heuristic_actions(random_ties=False, dead_ends_first=True, far_first=True)[:, 0])
+            core.step(np.where(live, move, gw.WAIT)[:, None])
+            taken += live
+            assert taken.max() <= 4 * 100
+        steps.append(taken)
+    assert (steps[1] <= steps[0]).all()
 
 
 def test_the_mean_over_all_eight_does_not_depend_on_the_turn():
