@@ -2052,12 +2052,12 @@ class GridWorldCore:
         far_first the heuristic (the base and the tries) takes far-first ties (heuristic_actions).
 
         With symmetries k > 1 the tries also run in k - 1 mirrored or turned copies of each world (_symmetric's
-        order) and a move's cost is its mean over the k copies (costs: floats). The
-        heuristic's last tie order (row-major) is arbitrary, and one copy's cheapest move is another's at only ~84%
-        of the states where they differ; the mean is a steadier label (benchmarks/label_symmetry.py). The move
-        taken is the cheapest by the mean among those whose steps in the world itself are no more than the
-        heuristic's move's: each step then shortens the heuristic's own steps to the end, so the walk is never
-        longer than the heuristic's (a mean alone can send an agent back and forth)."""
+        order) and a move's cost is its mean over the k copies (costs: floats). The heuristic's last tie order
+        (row-major) is arbitrary, and one copy's cheapest move is another's at only ~84% of the states where they
+        differ; the mean is a steadier label (benchmarks/label_symmetry.py). The move taken is the cheapest by the
+        mean among those whose steps in the world itself are no more than the heuristic's move's: each step then
+        shortens the heuristic's own steps to the end, so the walk is never longer than the heuristic's (a mean
+        alone can send an agent back and forth)."""
         if self.N != 1:
             raise ValueError(f"rollout_actions plans for one agent, the worlds have {self.N}")
         if view not in ("full", "known"):
@@ -2091,9 +2091,9 @@ class GridWorldCore:
         mean = total / symmetries  # -1 where the move is not a try, in every copy alike
         decided = (mean >= 0).sum(1) >= 2
         own = steps[np.arange(n), np.minimum(base, K - 1)]
-        tried = (steps >= 0) & (steps <= own[:, None])  # no dearer than the heuristic's move in this world itself
+        safe = (steps >= 0) & (steps <= own[:, None])  # no dearer than the heuristic's move in this world itself
         priority = np.where(np.arange(K) == base[:, None], -1, np.arange(K))  # ties: the heuristic's, then N, S, W, E
-        order = np.lexsort((priority, np.where(tried, mean, np.inf)), axis=1)
+        order = np.lexsort((priority, np.where(safe, mean, np.inf)), axis=1)
         out = np.where(decided, order[:, 0], out)
         return (out, mean) if costs else out
 
