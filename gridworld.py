@@ -1843,8 +1843,8 @@ class GridWorldCore:
         known passable cells) come first, so the walk sweeps away from the start and ends near it, as the
         wavefront planner's does; in a team also those farther from the agent's working teammates (twice the mean
         Manhattan steps to them), and an agent chases only targets no working teammate is nearer to (its Voronoi
-        region, in steps over the known passable cells; the far half of it first when it holds over twice the
-        team's mean) while it has any, then those of the region with the most, so the team spreads out. With
+        region, in steps over the known passable cells; the far half of it first when it holds over 1.5 x the
+        team's mean, in a team of three or more) while it has any, then those of the region with the most, so the team spreads out. With
         both, a target with no target neighbour (a hole if left) first, then the fewest (target neighbours - steps
         from the start - 2 x mean steps to the teammates). The row-major or random order then breaks the
         remaining ties."""
@@ -1971,8 +1971,8 @@ class GridWorldCore:
     def _own_targets(self, passable: np.ndarray, targets: np.ndarray, cells: np.ndarray) -> np.ndarray:
         """Each agent's targets in its Voronoi region: those no working teammate reaches in fewer steps over the
         passable cells (a cell as near to two agents is in both regions). An agent whose region holds more than
-        twice the team's mean takes its far half first (_far_half), and an agent with none there helps the agent
-        with the most (its targets: that agent's), else keeps them all. passable, targets: (B * N, H, words),
+        1.5 x the team's mean, of three working agents or more, takes its far half first (_far_half), and an
+        agent with none there helps the agent with the most (its targets: that agent's), else keeps them all. passable, targets: (B * N, H, words),
         each agent's copy of its world's; cells: each working agent's cell, an empty board for the others."""
         shape = (self.B, self.N) + passable.shape[1:]
         passable, front = passable.reshape(shape), cells.reshape(shape)
@@ -1986,7 +1986,8 @@ class GridWorldCore:
         count = np.bitwise_count(own).sum((1, 2)).reshape(self.B, self.N)
         working = self.active & ~self.frozen  # the agents with a cell on `cells`
         mean = np.where(working, count, 0).sum(1, keepdims=True) / np.maximum(working.sum(1, keepdims=True), 1)
-        overloaded = (working & (count > 2 * mean)).ravel()  # never with two agents: one would hold over all
+        # over 1.5 x the mean with three working agents or more; with two it cost more than it gained (docs/planners.md)
+        overloaded = (working & (count > 1.5 * mean) & (working.sum(1, keepdims=True) > 2)).ravel()
         big = np.flatnonzero(overloaded)
         if len(big):  # one search for each overloaded agent only
             world = big // self.N
