@@ -1928,7 +1928,7 @@ class GridWorldCore:
             apart = (np.abs(y[:, None] - yx[:, 0].reshape(B, N)[world])
                      + np.abs(x[:, None] - yx[:, 1].reshape(B, N)[world]))
             mates = working[world] & (np.arange(N) != (m % N)[:, None])
-            rank -= 2 * (np.where(mates, apart, 0).sum(1) // np.maximum(mates.sum(1), 1))  # no working teammate: 0
+            rank -= 2 * np.where(mates, apart, 0).sum(1) // np.maximum(mates.sum(1), 1)  # no working teammate: 0
         if len(rank):  # squeezed into [0, 1): the distance stays the first key
             tie = (rank - rank.min() + tie) / (rank.max() - rank.min() + 1)
         order = np.lexsort((l + tie, m))
