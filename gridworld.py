@@ -1844,10 +1844,10 @@ class GridWorldCore:
         wavefront planner's does; in a team also those farther from the agent's working teammates (twice the mean
         Manhattan steps to them), and an agent chases only targets no working teammate is nearer to (its Voronoi
         region, in steps over the known passable cells; the far half of it first when it holds over 1.5 x the
-        team's mean, in a team of three or more) while it has any, then those of the region with the most, so the team spreads out. With
-        both, a target with no target neighbour (a hole if left) first, then the fewest (target neighbours - steps
-        from the start - 2 x mean steps to the teammates). The row-major or random order then breaks the
-        remaining ties."""
+        team's mean, in a team of three or more) while it has any, then those of the region with the most, so the
+        team spreads out. With both, a target with no target neighbour (a hole if left) first, then the fewest
+        (target neighbours - steps from the start - 2 x mean steps to the teammates). The row-major or random
+        order then breaks the remaining ties."""
         B, H, W, c = self.B, self.H, self.W, self.c
         inner = (slice(None), slice(c, c + H), slice(c, c + W))
         seen = self.seen[inner]
@@ -1972,8 +1972,9 @@ class GridWorldCore:
         """Each agent's targets in its Voronoi region: those no working teammate reaches in fewer steps over the
         passable cells (a cell as near to two agents is in both regions). An agent whose region holds more than
         1.5 x the team's mean, of three working agents or more, takes its far half first (_far_half), and an
-        agent with none there helps the agent with the most (its targets: that agent's), else keeps them all. passable, targets: (B * N, H, words),
-        each agent's copy of its world's; cells: each working agent's cell, an empty board for the others."""
+        agent with none there helps the agent with the most (its targets: that agent's), else keeps them all.
+        passable, targets: (B * N, H, words), each agent's copy of its world's; cells: each working agent's cell,
+        an empty board for the others."""
         shape = (self.B, self.N) + passable.shape[1:]
         passable, front = passable.reshape(shape), cells.reshape(shape)
         agents = front  # the loop below rebinds front, never writes into it

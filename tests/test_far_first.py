@@ -169,34 +169,21 @@ def test_in_a_team_an_agent_with_an_empty_region_helps_the_one_with_the_most_lef
     assert core.heuristic_actions(False, True, True)[0, 0] == gw.EAST
 
 
-def test_in_a_team_an_overloaded_agent_takes_the_far_half_of_its_region_first_by_hand():
-    """A 1x17 corridor, agent 0 at column 7, agent 1 at 1 and agent 2 at 0; columns 0-1, 7 and 8 covered, so the
-    points of interest are 2-6 and 9-16. Agent 1's region holds 2, 3 and 4 (4 is as near to agent 0), agent 2's
-    none, agent 0's 4-6 and 9-16: 11, over 1.5 x the mean (14 / 3). Steps from agent 0's targets to its nearest
-    teammate (agent 1): 3-5 for 4-6, 8-15 for 9-16, so its far half is 9-16 (at least 15 / 2 steps) and it goes E,
-    though 6 (one step) is nearer than 9 (two). With agent 2 frozen two agents work, the far half is for three or
-    more, and agent 0 goes W, to 6, as the nearest target."""
+@pytest.mark.parametrize("agent_0, covered_columns", [(7, [0, 1, 7, 8]), (9, [0, 1, 9, 10, 11, 12])],
+                         ids=["over twice the mean", "over 1.5 x the mean"])
+def test_in_a_team_an_overloaded_agent_takes_the_far_half_of_its_region_first_by_hand(agent_0, covered_columns):
+    """A 1x17 corridor, agent 1 at column 1 and agent 2 at 0, so agent 2's region holds no point of interest.
+    Agent 0 at 7, columns 0-1, 7 and 8 covered: agent 1's region holds 2, 3 and 4 (4 is as near to agent 0), agent
+    0's 4-6 and 9-16: 11, over 1.5 x the mean (14 / 3). Steps from agent 0's targets to its nearest teammate
+    (agent 1): 3-5 for 4-6, 8-15 for 9-16, so its far half is 9-16 (at least 15 / 2 steps) and it goes E, though
+    6 (one step) is nearer than 9 (two). Agent 0 at 9, columns 0-1 and 9-12 covered: agent 1's region holds 2-5
+    (5 is as near to agent 0): 4; agent 0's 5-8 and 13-16: 8, over 1.5 x the mean (12 / 3) though not over twice
+    it. Its targets lie 4-7 and 12-15 steps from agent 1, so its far half is 13-16 and it goes E, though 8 (one
+    step) is nearer than 13 (four). With agent 2 frozen two agents work, the far half is for three or more, and
+    agent 0 goes W, to the nearest target."""
     covered = np.zeros((1, 17), bool)
-    covered[0, [0, 1, 7, 8]] = True
-    s = gw.Scenario(np.zeros((1, 17), bool), np.array([[0, 7], [0, 1], [0, 0]]), covered)
-    core = gw.GridWorldCore(gw.EnvConfig(load_state=True, number_agents=3, battery_factor=1e6), 1)
-    core.configure(scenarios=[cc.with_starts(s)])
-    core.reset()
-    assert core.heuristic_actions(False, False, True)[0, 0] == gw.EAST
-    assert core.heuristic_actions(False, True, True)[0, 0] == gw.EAST
-    core.freeze([0], 2)
-    assert core.heuristic_actions(False, True, True)[0, 0] == gw.WEST
-
-
-def test_in_a_team_a_region_over_one_and_a_half_times_the_mean_is_overloaded_by_hand():
-    """A 1x17 corridor, agent 0 at column 9, agent 1 at 1 and agent 2 at 0; columns 0-1 and 9-12 covered, so the
-    points of interest are 2-8 and 13-16. Agent 1's region holds 2-5 (5 is as near to agent 0): 4; agent 2's none;
-    agent 0's 5-8 and 13-16: 8, over 1.5 x the mean (12 / 3 = 4) though not over twice it. Steps from agent 0's
-    targets to agent 1: 4-7 for 5-8, 12-15 for 13-16, so its far half is 13-16 and it goes E, though 8 (one step)
-    is nearer than 13 (four). With agent 2 frozen (two working agents) it goes W, to 8."""
-    covered = np.zeros((1, 17), bool)
-    covered[0, [0, 1, 9, 10, 11, 12]] = True
-    s = gw.Scenario(np.zeros((1, 17), bool), np.array([[0, 9], [0, 1], [0, 0]]), covered)
+    covered[0, covered_columns] = True
+    s = gw.Scenario(np.zeros((1, 17), bool), np.array([[0, agent_0], [0, 1], [0, 0]]), covered)
     core = gw.GridWorldCore(gw.EnvConfig(load_state=True, number_agents=3, battery_factor=1e6), 1)
     core.configure(scenarios=[cc.with_starts(s)])
     core.reset()
