@@ -193,6 +193,25 @@ def test_in_a_team_an_overloaded_agent_takes_the_far_half_of_its_region_first_by
     assert core.heuristic_actions(False, True, True)[0, 0] == gw.WEST
 
 
+def test_in_a_team_the_teammate_term_is_twice_the_mean_steps_rounded_once_by_hand():
+    """A 2x5 room, `o` covered, agents 0-3 where their digits are:
+        o3..2
+        o0o1.
+    The points of interest: (0,2) in agent 3's region, (0,3) and (1,4) in agents 1 and 2's (one step from each);
+    agent 0's region is empty. For agent 1 both are one step away and one step from the nearest start; their
+    Manhattan steps to its teammates 0, 2 and 3 sum to 3 + 1 + 2 = 6 and 3 + 1 + 4 = 8. Twice the mean,
+    2 x 6 // 3 = 4 and 2 x 8 // 3 = 5, puts (1,4) first: E (flooring the mean before doubling would tie them at 4,
+    and row-major order would take (0,3): N). Agent 2's sums are the same, so it prefers (1,4) too; agent 1 claims
+    it first (the lower index) and agent 2 takes (0,3): W. Agent 3 goes E, to (0,2); agent 0 (helping agent 1)
+    finds every target claimed and waits. Without dead-ends-first: with it (1,4), a hole, comes first anyway."""
+    covered = np.array([[1, 1, 0, 0, 1], [1, 1, 1, 1, 0]], bool)
+    s = gw.Scenario(np.zeros((2, 5), bool), np.array([[1, 1], [1, 3], [0, 4], [0, 1]]), covered)
+    core = gw.GridWorldCore(gw.EnvConfig(load_state=True, number_agents=4, battery_factor=1e6), 1)
+    core.configure(scenarios=[cc.with_starts(s)])
+    core.reset()
+    assert core.heuristic_actions(False, False, True)[0].tolist() == [gw.WAIT, gw.EAST, gw.WEST, gw.EAST]
+
+
 def test_greedy_far_first_planner_covers_every_map():
     scenarios = gw.generate_scenarios(8, seed=5, size=10, map_family="rooms")
     for s, paths in zip(scenarios, cc.plan("greedy-far-first", scenarios)):
