@@ -982,11 +982,14 @@ def _symmetric_cells(cells: np.ndarray, k: int, H: int, W: int) -> np.ndarray:
     return np.stack([y, x], 1)
 
 
+@functools.cache
 def _symmetric_moves(k: int) -> np.ndarray:
-    """m[a]: the move of _symmetric(board, k) that is move a (N, S, W, E) of the board."""
+    """m[a]: the move of _symmetric(board, k) that is move a (N, S, W, E) of the board (read-only: cached)."""
     d = ACTION_DELTAS[:4]
     turned = _symmetric_cells(d + 1, k, 3, 3) - 1  # the moves as cells around the centre of a 3 x 3 board
-    return np.array([int(np.flatnonzero((d == t).all(1))[0]) for t in turned])
+    moves = np.array([int(np.flatnonzero((d == t).all(1))[0]) for t in turned])
+    moves.setflags(write=False)
+    return moves
 
 
 class _Walkers:

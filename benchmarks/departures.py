@@ -44,7 +44,7 @@ import evaluate  # noqa: E402
 import gridworld as gw  # noqa: E402
 import rainbow_cpp as rc  # noqa: E402
 
-FAMILIES = ("random", "rooms", "corridors", "clutter", "maze")
+FAMILIES = ("random", *gw.STRUCTURED_FAMILIES)
 
 
 @dataclass

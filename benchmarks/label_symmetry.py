@@ -33,7 +33,7 @@ from cpu import pin  # noqa: E402
 
 import gridworld as gw  # noqa: E402
 
-FAMILIES = ("random", "rooms", "corridors", "clutter", "maze")
+FAMILIES = ("random", *gw.STRUCTURED_FAMILIES)
 
 
 @dataclass

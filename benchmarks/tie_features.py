@@ -36,7 +36,7 @@ from cpu import pin  # noqa: E402
 
 import gridworld as gw  # noqa: E402
 
-FAMILIES = ("random", "rooms", "corridors", "clutter", "maze")
+FAMILIES = ("random", *gw.STRUCTURED_FAMILIES)
 FEATURES = ("uncovered neighbours", "hole", "steps from the start, change", "pieces of the uncovered ring",
             "blocked neighbours", "uncovered diagonals", "uncovered in the 5x5 window", "uncovered run ahead",
             "same move as the last", "steps from the start / farthest")
