@@ -36,7 +36,6 @@ from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
-import tyro
 from tqdm import tqdm
 
 import gridworld
@@ -1176,7 +1175,18 @@ def report(per_size: int, out: str, quiet: bool = False, structured_per_band: in
     return result
 
 
+def _metrics_file(path: str) -> bool:
+    """Whether an existing --out holds JSON lines of metrics (an earlier --out), so that nothing else is overwritten."""
+    try:
+        with open(path) as f:
+            return "overlap" in json.loads(f.readline())
+    except (OSError, ValueError, TypeError, UnicodeDecodeError):
+        return False
+
+
 def main(args: Args) -> None:
+    if args.report and (args.maps or args.dataset):
+        raise ValueError("--report plans its own maps (see --help); drop --maps and --dataset")
     if args.report:
         report(args.per_size, args.out or os.path.join(ROOT, "results"), args.quiet, args.structured_per_band)
         return
@@ -1186,6 +1196,8 @@ def main(args: Args) -> None:
         raise ValueError(f"unknown rollout base {args.rollout_base!r}; choose from {sorted(ROLLOUT_BASES)}")
     if args.out and not os.path.isdir(os.path.dirname(os.path.abspath(args.out))):
         raise ValueError(f"--out {args.out}: no such folder")
+    if args.out and os.path.exists(args.out) and not _metrics_file(args.out):
+        raise ValueError(f"--out {args.out}: exists and is not an earlier --out (JSON lines of metrics)")
     scenarios = load_scenarios(args)
     with tqdm(total=len(scenarios), desc=args.planner, unit="map", disable=args.quiet or not sys.stdout.isatty()) as bar:
         rows, ms = evaluate(args.planner, scenarios, bar, args.rollout_base)
@@ -1203,6 +1215,6 @@ def main(args: Args) -> None:
 
 if __name__ == "__main__":
     try:
-        main(tyro.cli(Args))
+        main(gridworld.cli(Args))
     except ValueError as e:
         raise SystemExit(f"error: {e}") from None

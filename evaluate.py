@@ -54,7 +54,6 @@ from dataclasses import dataclass, replace
 from functools import partial
 
 import numpy as np
-import tyro
 from tqdm import tqdm
 
 import classical_cpp
@@ -205,7 +204,8 @@ def scenarios_from(args: Args) -> list[tuple[str, Scenario]]:
     named: list[tuple[str, Scenario]] = []
     if args.dataset:
         if not os.path.isfile(args.dataset):
-            raise ValueError(f"--dataset {args.dataset}: no such file")
+            raise ValueError(f"--dataset {args.dataset}: " + ("a folder, not a dataset file" if os.path.isdir(args.dataset)
+                                                               else "no such file"))
         base = os.path.basename(args.dataset)
         named += [(f"{base}[{i}]", s) for i, s in enumerate(_load(gridworld.load_dataset, args.dataset, "dataset"))]
     for path in args.maps:
@@ -553,7 +553,9 @@ def _filmed(args: Args, episodes: list[tuple[str, Scenario]]) -> list[int]:
 def main(args: Args) -> dict:
     """Run --policy (and every --compare policy) on the episodes asked for; only once everything has run,
     write DIR/episodes.csv and DIR/summary.json (+ the comparison and the videos) and print a summary."""
-    compared = [p.strip() for p in args.compare.split(",") if p.strip()]
+    compared = [p.strip() for p in args.compare.split(",")] if args.compare.strip() else []
+    if "" in compared:
+        raise ValueError(f"--compare {args.compare}: an empty name in the list")
     policies = [args.policy] + compared
     for flag, p in [("--policy", args.policy)] + [("--compare", p) for p in compared]:
         if p not in classical_cpp.PLANNERS and p not in LEARNED and p not in FRONTIER:
@@ -573,9 +575,14 @@ def main(args: Args) -> dict:
                         ("--video-max", args.video_max)):
         if value < 1:
             raise ValueError(f"{flag} must be >= 1, got {value}")
+    if args.checkpoint and args.policy not in LEARNED:
+        raise ValueError(f"--checkpoint is for the learned policies ({', '.join(LEARNED)}), not {args.policy}")
     for flag, folder in (("--out", args.out), ("--video", args.video)):
         if folder is not None and os.path.exists(folder) and not os.path.isdir(folder):
             raise ValueError(f"{flag} {folder}: exists and is not a folder")
+    if args.out and os.path.isdir(args.out) and not os.path.exists(os.path.join(args.out, "summary.json")) and any(
+            os.path.isfile(os.path.join(args.out, name)) for name in os.listdir(args.out)):  # models/, results/, ...
+        raise ValueError(f"--out {args.out}: a folder of other files; name a new folder or an earlier --out")
     runners = {p: _runner(args if p == args.policy else replace(args, policy=p, checkpoint=None), p)
                for p in policies}  # every check and model load before anything runs
     episodes = scenarios_from(args)
@@ -697,8 +704,8 @@ if __name__ == "__main__":
     import report  # report.py imports this module, so only here: `python evaluate.py report ...` is report.py's CLI
 
     try:
-        command = tyro.cli(report.beside(Args(), "evaluate", "evaluate a policy on maps"), default=Args(), description=__doc__,
-                           config=report.CLI_CONFIG)
+        command = gridworld.cli(report.beside(Args(), "evaluate", "evaluate a policy on maps"), default=Args(),
+                                description=__doc__, config=report.CLI_CONFIG)
         if isinstance(command, Args):
             main(command)
         else:

@@ -299,6 +299,32 @@ class EnvConfig:
         self.family.validate()
 
 
+def cli(f, **kwargs):
+    """tyro.cli(f, **kwargs) for the scripts, with a flag tyro cannot parse reported as one line `error: ...` on
+    stderr (exit 2), like every other bad input, in place of tyro's box; --help is tyro's own."""
+    import contextlib
+    import io
+
+    import tyro  # here, not above: the environment's users need no CLI parser
+
+    captured = io.StringIO()
+    try:
+        with contextlib.redirect_stderr(captured):
+            parsed = tyro.cli(f, **kwargs)
+    except SystemExit as e:
+        lines = [line.strip(" │╭╮╰╯") for line in captured.getvalue().splitlines()]
+        rule = [not line.strip("-─") for line in lines]  # tyro's box: a title, a rule (where no terminal), the message
+        start = next((i for i in range(1, len(lines)) if not rule[i]), len(lines))
+        end = next((i for i in range(start, len(lines)) if rule[i]), len(lines))
+        if e.code == 2 and start < end:
+            message = " ".join(lines[start:end])
+            raise SystemExit(f"error: {message} (see {os.path.basename(sys.argv[0])} --help)") from None
+        sys.stderr.write(captured.getvalue())
+        raise
+    sys.stderr.write(captured.getvalue())
+    return parsed
+
+
 def load_config(path: str) -> dict[str, EnvConfig]:
     """Named environments from a YAML file (curriculum stages, Table 4.1 keys).
 

@@ -47,7 +47,6 @@ import numpy as np
 import torch
 import torch.nn as nn
 import torch.nn.functional as F
-import tyro
 from tqdm import tqdm
 
 import gridworld
@@ -883,6 +882,8 @@ def load_checkpoint(path: str) -> dict:
     missing = [k for k in CHECKPOINT_KEYS if k not in state]
     if missing:
         raise ValueError(f"{path}: not a training checkpoint (no {', '.join(missing)})")
+    if state.get("script", SCRIPT) != SCRIPT:  # older checkpoints do not say
+        raise ValueError(f"{path}: a {state['script']}.py run; resume it with {state['script']}.py")
     return state
 
 
@@ -916,10 +917,25 @@ def check_flags(args: Args) -> None:
 
 
 def run_name_of(args: Args) -> str:
-    """--run-name, else CleanRL's unique f"{exp_name}__{seed}__{unix time}"; --resume names the run it continues."""
+    """--run-name, else CleanRL's unique f"{exp_name}__{seed}__{unix time}"; --resume names the run it continues.
+    A name is one folder under runs/, and a run there is continued (--resume) or left alone, never overwritten;
+    --export is checked here too, so a bad path fails before training, not at the first save."""
     if args.resume and not args.run_name:
         raise ValueError("--resume needs --run-name (the folder under runs/ to continue)")
-    return args.run_name or f"{args.exp_name}__{args.seed}__{int(time.time())}"
+    name = args.run_name or f"{args.exp_name}__{args.seed}__{int(time.time())}"
+    if name in (".", "..") or os.path.basename(name) != name or "\\" in name:
+        raise ValueError(f"--run-name must be a folder name under runs/ (no '/' or '..'), got {name!r}")
+    if not args.resume and os.path.exists(os.path.join("runs", name, "checkpoint.pt")):
+        raise ValueError(f"runs/{name} holds a run already: --resume continues it, or choose another --run-name")
+    if args.export:
+        if not args.export.endswith(".pt") or os.path.isdir(args.export):
+            raise ValueError(f"--export must name a .pt file, got {args.export!r}")
+        folder = os.path.dirname(os.path.abspath(args.export))
+        while not os.path.exists(folder):  # the folders save_checkpoint would make: the nearest existing one
+            folder = os.path.dirname(folder)
+        if not (os.path.isdir(folder) and os.access(folder, os.W_OK)):
+            raise ValueError(f"--export {args.export}: cannot write under {folder}")
+    return name
 
 
 def with_network(args: Args, model: dict | None, source: str | None) -> Args:
@@ -1079,7 +1095,7 @@ def save_run(run_dir: str, q: QNetwork, optimizer: torch.optim.Optimizer, args: 
     provenance of this code and machine, and the parent model's lineage."""
     save_checkpoint(os.path.join(run_dir, "checkpoint.pt"), {
         "model": q.state_dict(), "optimizer": optimizer.state_dict(), "global_step": global_step,
-        "stage": stage_index, "wall": wall, "args": asdict(args), "numpy_rng": rng.bit_generator.state,
+        "stage": stage_index, "wall": wall, "args": asdict(args), "script": SCRIPT, "numpy_rng": rng.bit_generator.state,
         "torch_rng": torch.get_rng_state(), "parent": parent, **q.network()})
     threads = torch.get_num_threads()
     export(q, args, {
@@ -1528,6 +1544,6 @@ def main(args: Args) -> None:
 
 if __name__ == "__main__":
     try:
-        main(tyro.cli(Args))
+        main(gridworld.cli(Args))
     except ValueError as e:
         raise SystemExit(f"error: {e}") from None

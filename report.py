@@ -1301,7 +1301,7 @@ CLI_CONFIG = (tyro.conf.CascadeSubcommandArgs,)  # the default subcommand's flag
 
 def cli(args: list[str] | None = None) -> Collect | Render | Plot:
     """`python report.py [all|collect|render|plot] ...`; no subcommand is `all`."""
-    return tyro.cli(Command, default=All(), args=args, description=__doc__, config=CLI_CONFIG)
+    return gridworld.cli(Command, default=All(), args=args, description=__doc__, config=CLI_CONFIG)
 
 
 def beside(default, name: str, description: str):

@@ -33,7 +33,6 @@ from dataclasses import asdict, dataclass
 from datetime import UTC, datetime
 
 import numpy as np
-import tyro
 from tqdm import tqdm
 
 import gridworld
@@ -584,6 +583,10 @@ def main(args: Args) -> dict:
     if args.sensor not in gridworld.SENSORS:
         raise ValueError(f"--sensor must be one of {', '.join(gridworld.SENSORS)}, got {args.sensor!r}")
     run_name = args.run_name or f"{args.exp_name}__{args.seed}__{int(time.time())}"
+    if run_name in (".", "..") or os.path.basename(run_name) != run_name or "\\" in run_name:
+        raise ValueError(f"--run-name must be a folder name under runs/ (no '/' or '..'), got {run_name!r}")
+    if not args.table_path and os.path.exists(os.path.join("runs", run_name, "tabular_q.npz")):
+        raise ValueError(f"runs/{run_name} holds a run already: choose another --run-name")
     table_path = args.table_path or os.path.join("runs", run_name, "tabular_q.npz")
     if not table_path.endswith(".npz") or os.path.isdir(table_path):
         raise ValueError(f"--table-path {table_path}: must name an .npz file (its .json goes beside it)")
@@ -642,6 +645,6 @@ def main(args: Args) -> dict:
 
 if __name__ == "__main__":
     try:
-        main(tyro.cli(Args))
+        main(gridworld.cli(Args))
     except ValueError as e:
         raise SystemExit(f"error: {e}") from None

@@ -291,3 +291,98 @@ def test_make_datasets_out_must_be_a_folder(tmp_path):
     (tmp_path / "file").write_text("")
     cli_error(tmp_path, "maps/make_datasets.py", "--out", str(tmp_path / "file"), match="--out .*file: not a folder")
     assert listing(tmp_path) == ["file"]
+
+
+# ----------------------------------------------------------------------------- every script's flags
+@pytest.mark.parametrize("script,flags,problem", [
+    ("evaluate.py", ["--agents", "abc"], "Error parsing --agents: invalid literal for int\\(\\)"),
+    ("classical_cpp.py", ["--bogus", "1"], "Unrecognized options: --bogus"),
+    ("rainbow_cpp.py", ["--total-steps"], "Missing value for argument '--total-steps'"),
+    ("rainbow_marl.py", ["--network", "bogus"], "invalid choice 'bogus' for argument '--network'"),
+    ("tabular_q.py", ["--alpha", "xyz"], "Error parsing --alpha"),
+    ("report.py", ["bogus"], "Unrecognized options: bogus"),
+])
+def test_a_flag_the_parser_refuses_is_one_error_line(tmp_path, script, flags, problem):
+    cli_error(tmp_path, script, *flags, match=f"^error: {problem}.*\\(see {script} --help\\)$")
+    assert listing(tmp_path) == []
+
+
+@pytest.mark.parametrize("script", ["rainbow_cpp.py", "rainbow_marl.py", "tabular_q.py"])
+@pytest.mark.parametrize("name", ["../models", "/tmp/elsewhere", "..", "a/b"])
+def test_a_run_name_is_one_folder_under_runs(tmp_path, script, name):
+    cli_error(tmp_path, script, "--run-name", name, match="^error: --run-name must be a folder name under runs/")
+    assert listing(tmp_path) == []
+
+
+@pytest.mark.parametrize("script,made", [("rainbow_cpp.py", "checkpoint.pt"), ("rainbow_marl.py", "checkpoint.pt"),
+                                         ("tabular_q.py", "tabular_q.npz")])
+def test_a_trainer_never_overwrites_an_earlier_run(tmp_path, script, made):
+    (tmp_path / "runs" / "earlier").mkdir(parents=True)
+    (tmp_path / "runs" / "earlier" / made).write_bytes(b"the earlier run")
+    cli_error(tmp_path, script, "--run-name", "earlier", match="^error: runs/earlier holds a run already")
+    assert (tmp_path / "runs" / "earlier" / made).read_bytes() == b"the earlier run"
+    assert listing(tmp_path) == ["runs", "runs/earlier", f"runs/earlier/{made}"]
+
+
+@pytest.mark.parametrize("script", ["rainbow_cpp.py", "rainbow_marl.py"])
+@pytest.mark.parametrize("export,problem", [("models", "must name a .pt file"), ("model.npz", "must name a .pt file"),
+                                            ("taken/model.pt", "cannot write under .*taken")])
+def test_a_bad_export_fails_before_training(tmp_path, script, export, problem):
+    (tmp_path / "models").mkdir()
+    (tmp_path / "taken").write_text("a file, not a folder")
+    cli_error(tmp_path, script, "--export", export, match=f"^error: --export .*{problem}")
+    assert listing(tmp_path) == ["models", "taken"]
+
+
+def test_a_checkpoint_resumes_only_in_its_own_trainer(tmp_path):
+    import torch
+
+    import rainbow_cpp
+    import rainbow_marl
+
+    state = {"model": {}, "optimizer": {}, "global_step": 0, "stage": 0, "wall": 0.0, "numpy_rng": {},
+             "torch_rng": torch.zeros(1, dtype=torch.uint8)}
+    torch.save({**state, "script": "rainbow_marl"}, tmp_path / "marl.pt")
+    torch.save(state, tmp_path / "older.pt")  # before checkpoints said which trainer wrote them: either may resume it
+    one_line_value_error(rainbow_cpp.load_checkpoint, str(tmp_path / "marl.pt"),
+                         match="marl.pt: a rainbow_marl.py run; resume it with rainbow_marl.py")
+    assert rainbow_marl.load_checkpoint(str(tmp_path / "marl.pt"))["script"] == "rainbow_marl"
+    assert rainbow_cpp.load_checkpoint(str(tmp_path / "older.pt"))["global_step"] == 0
+
+
+def test_evaluate_refuses_flags_that_would_be_ignored_or_write_among_other_files(tmp_path, monkeypatch):
+    import evaluate
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "folder").mkdir()
+    (tmp_path / "folder" / "model.pt").write_bytes(b"not ours")
+    (tmp_path / "earlier").mkdir()
+    (tmp_path / "earlier" / "summary.json").write_text("{}")
+    one_line_value_error(evaluate.main, evaluate.Args(policy="greedy", checkpoint="missing.pt"),
+                         match="--checkpoint is for the learned policies .*not greedy")
+    one_line_value_error(evaluate.main, evaluate.Args(policy="greedy", out="folder"),
+                         match="--out folder: a folder of other files")
+    one_line_value_error(evaluate.main, evaluate.Args(policy="greedy", compare="wavefront,,lkh"),
+                         match="--compare wavefront,,lkh: an empty name in the list")
+    one_line_value_error(evaluate.main, evaluate.Args(policy="greedy", dataset="folder"),
+                         match="--dataset folder: a folder, not a dataset file")
+    assert listing(tmp_path) == ["earlier", "earlier/summary.json", "folder", "folder/model.pt"]
+    evaluate.main(evaluate.Args(policy="greedy", maps=(str(ROOT / "maps/external/empty-8-8.map"),), out="earlier",
+                                quiet=True))  # an earlier --out is written again
+    assert sorted(os.listdir(tmp_path / "earlier")) == ["episodes.csv", "summary.json"]
+
+
+def test_classical_cpp_overwrites_only_its_own_metrics(tmp_path):
+    import classical_cpp as cc
+
+    (tmp_path / "model.json").write_text('{\n "args": {}\n}\n')
+    one_line_value_error(cc.main, cc.Args(maps=(str(ROOT / "maps/external/empty-8-8.map"),), out=str(tmp_path / "model.json")),
+                         match="model.json: exists and is not an earlier --out")
+    assert (tmp_path / "model.json").read_text() == '{\n "args": {}\n}\n'
+    one_line_value_error(cc.main, cc.Args(report=True, maps=("x.map",), out=str(tmp_path / "report")),
+                         match="--report plans its own maps")
+    out = tmp_path / "metrics.jsonl"
+    for _ in range(2):  # the second run writes over the first's metrics
+        cc.main(cc.Args(maps=(str(ROOT / "maps/external/empty-8-8.map"),), out=str(out), quiet=True))
+    assert len(out.read_text().splitlines()) == 1
+    assert listing(tmp_path) == ["metrics.jsonl", "model.json"]

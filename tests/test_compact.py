@@ -84,7 +84,7 @@ def test_no_cuda_trains_the_default_network_exactly_as_before(name, tmp_path, mo
         return out
 
     monkeypatch.setattr(t, "learn", recording)
-    flags = [*REFERENCE_FLAGS, "--no-cuda", "--run-name", str(tmp_path / "run"), "--export", str(tmp_path / "m.pt")]
+    flags = [*REFERENCE_FLAGS, "--no-cuda", "--run-name", "run", "--export", str(tmp_path / "m.pt")]
     threads = torch.get_num_threads()
     try:
         t.main(tyro.cli(t.Args, args=flags + (["--init-from", ""] if t is rm else [])))
@@ -93,7 +93,7 @@ def test_no_cuda_trains_the_default_network_exactly_as_before(name, tmp_path, mo
     ref = REFERENCE[name]
     assert len(losses) == ref["updates"]
     assert losses[:len(ref["losses"])] == pytest.approx(ref["losses"], rel=1e-5)  # the first: before any step
-    weights = torch.load(tmp_path / "run" / "checkpoint.pt", weights_only=True)["model"]
+    weights = torch.load(tmp_path / "runs" / "run" / "checkpoint.pt", weights_only=True)["model"]
     assert {k: float(weights[k].double().sum()) for k in ref["sums"]} == pytest.approx(ref["sums"], rel=1e-3, abs=1e-4)
 
 

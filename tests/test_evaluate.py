@@ -106,7 +106,7 @@ def test_more_agents_than_cells_and_bad_map_file(tmp_path):
     tiny = tmp_path / "tiny.txt"
     tiny.write_text("..\n")
     with pytest.raises(ValueError, match="2 free cells for 3 agents"):
-        evaluate.main(evaluate.Args(policy="greedy", maps=(str(tiny),), agents=3, out=str(tmp_path)))
+        evaluate.main(evaluate.Args(policy="greedy", maps=(str(tiny),), agents=3, out=str(tmp_path / "o")))
     bad = tmp_path / "bad.txt"
     bad.write_text("..\n.\n")
     result = subprocess.run([sys.executable, "evaluate.py", "--policy", "greedy", "--maps", str(bad),

@@ -310,7 +310,7 @@ def test_transfer_from_a_single_agent_model(tmp_path, monkeypatch, restore_sigin
         if "sigma" not in k and "eps" not in k:
             assert torch.allclose(model[k], v.half().float()), k
     with pytest.raises(ValueError, match="hidden 16"):
-        rm.main(small_args(tmp_path, init_from=str(tmp_path / "single.pt"), hidden=32))
+        rm.main(small_args(tmp_path, init_from=str(tmp_path / "single.pt"), hidden=32, run_name="t2"))
 
 
 @pytest.mark.parametrize("flags,message", [
