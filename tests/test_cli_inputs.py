@@ -301,9 +301,10 @@ def test_make_datasets_out_must_be_a_folder(tmp_path):
     ("rainbow_marl.py", ["--network", "bogus"], "invalid choice 'bogus' for argument '--network'"),
     ("tabular_q.py", ["--alpha", "xyz"], "Error parsing --alpha"),
     ("report.py", ["bogus"], "Unrecognized options: bogus"),
+    ("maps/make_datasets.py", ["--per-size", "abc"], "Error parsing --per-size"),
 ])
 def test_a_flag_the_parser_refuses_is_one_error_line(tmp_path, script, flags, problem):
-    cli_error(tmp_path, script, *flags, match=f"^error: {problem}.*\\(see {script} --help\\)$")
+    cli_error(tmp_path, script, *flags, match=f"^error: {problem}.*\\(see {os.path.basename(script)} --help\\)$")
     assert listing(tmp_path) == []
 
 
