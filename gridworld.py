@@ -301,7 +301,7 @@ class EnvConfig:
 
 def cli(f, **kwargs):
     """tyro.cli(f, **kwargs) for the scripts, with a flag tyro cannot parse reported as one line `error: ...` on
-    stderr (exit 2), like every other bad input, in place of tyro's box; --help is tyro's own."""
+    stderr and a non-zero exit, like every other bad input, in place of tyro's box; --help is tyro's own."""
     import contextlib
     import io
 

@@ -914,20 +914,7 @@ def check_flags(args: Args) -> None:
         raise ValueError(f"--margin-loss-end must be >= 0, got {args.margin_loss_end}")
     if args.departure_weight != 1 and not args.hint:
         raise ValueError("--departure-weight needs --hint (a departure is a label other than the heuristic's move)")
-
-
-def run_name_of(args: Args) -> str:
-    """--run-name, else CleanRL's unique f"{exp_name}__{seed}__{unix time}"; --resume names the run it continues.
-    A name is one folder under runs/, and a run there is continued (--resume) or left alone, never overwritten;
-    --export is checked here too, so a bad path fails before training, not at the first save."""
-    if args.resume and not args.run_name:
-        raise ValueError("--resume needs --run-name (the folder under runs/ to continue)")
-    name = args.run_name or f"{args.exp_name}__{args.seed}__{int(time.time())}"
-    if name in (".", "..") or os.path.basename(name) != name or "\\" in name:
-        raise ValueError(f"--run-name must be a folder name under runs/ (no '/' or '..'), got {name!r}")
-    if not args.resume and os.path.exists(os.path.join("runs", name, "checkpoint.pt")):
-        raise ValueError(f"runs/{name} holds a run already: --resume continues it, or choose another --run-name")
-    if args.export:
+    if args.export:  # before training, not at the first save
         if not args.export.endswith(".pt") or os.path.isdir(args.export):
             raise ValueError(f"--export must name a .pt file, got {args.export!r}")
         folder = os.path.dirname(os.path.abspath(args.export))
@@ -935,6 +922,18 @@ def run_name_of(args: Args) -> str:
             folder = os.path.dirname(folder)
         if not (os.path.isdir(folder) and os.access(folder, os.W_OK)):
             raise ValueError(f"--export {args.export}: cannot write under {folder}")
+
+
+def run_name_of(args: Args) -> str:
+    """--run-name, else CleanRL's unique f"{exp_name}__{seed}__{unix time}"; --resume names the run it continues.
+    A name is one folder under runs/, and a run there is continued (--resume) or left alone, never overwritten."""
+    if args.resume and not args.run_name:
+        raise ValueError("--resume needs --run-name (the folder under runs/ to continue)")
+    name = args.run_name or f"{args.exp_name}__{args.seed}__{int(time.time())}"
+    if name in (".", "..") or os.path.basename(name) != name or "\\" in name:
+        raise ValueError(f"--run-name must be a folder name under runs/ (no '/' or '..'), got {name!r}")
+    if not args.resume and os.path.exists(os.path.join("runs", name, "checkpoint.pt")):
+        raise ValueError(f"runs/{name} holds a run already: --resume continues it, or choose another --run-name")
     return name
 
 
