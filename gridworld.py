@@ -1023,7 +1023,8 @@ class _Walkers:
     random_ties=False, one agent, full view) on bare maps, in lockstep: the rollouts' tries. A map is its free
     cells and points of interest, flat with a border of obstacle; several walkers may share a map (`map_of`).
     Only a walker with no point of interest next to it looks further: in its map's _path_tables where they are
-    given (a few array operations), else by a breadth-first search; the others pick among their neighbours."""
+    given (a few array operations, and the target found is kept for the walk to it), else by a breadth-first
+    search; the others pick among their neighbours."""
 
     def __init__(self, free: np.ndarray, poi: np.ndarray, cells: np.ndarray, dead_ends_first: bool,
                  tables: list | None = None, start: np.ndarray | None = None):
@@ -1039,6 +1040,8 @@ class _Walkers:
             self.from_start = steps.reshape(n, -1)
         self.map_of = np.arange(n)
         self.pos = (cells[:, 0] + 1) * self.Wp + cells[:, 1] + 1
+        self.goal = np.full(n, -1)  # a far walker's target from _look_up, kept until it is next to one (-1: none)
+        self.planned = np.full(n, -1)  # the last moves(): a walker stepping otherwise drops its goal
         self.remaining = self.poi.sum(1)
         self.delta = np.array([-self.Wp, self.Wp, -1, 1])  # N, S, W, E
         self.tables = tables or [None] * n  # per map: _path_tables of its free cells, or None (search)
@@ -1048,6 +1051,7 @@ class _Walkers:
         out = object.__new__(_Walkers)
         out.__dict__.update(self.__dict__)
         out.map_of, out.pos, out.remaining = self.map_of[rows], self.pos[rows], self.remaining[rows]
+        out.goal, out.planned = self.goal[rows], self.planned[rows]
         out.poi = self.poi[rows]
         return out
 
@@ -1071,17 +1075,33 @@ class _Walkers:
         key = np.where(target, self._key(degree, near, self.map_of[:, None]), np.iinfo(np.int64).max)
         move = np.where(target.any(1), key.argmin(1), WAIT)
         far = np.flatnonzero(~target.any(1))
+        self.goal[target.any(1)] = -1
         if len(far):
             tabled = np.array([self.tables[m] is not None for m in self.map_of[far]], bool)
             if tabled.any():
                 move[far[tabled]] = self._look_up(far[tabled])
             if not tabled.all():
                 move[far[~tabled]] = self._search(far[~tabled])
+        self.planned = move
         return move
 
     def _look_up(self, far: np.ndarray) -> np.ndarray:
         """_search's moves from the walkers' _path_tables: the nearest targets by distance, ties by _key, and the
-        tabled first cell toward the chosen one."""
+        tabled first cell toward the chosen one. A walker keeps its target until it is next to one: its points of
+        interest do not change on the way and the target stays the nearest by that order (each step brings it
+        one closer, and any other one at most one), so only the first step of a walk searches."""
+        going = self.goal[far] >= 0
+        move = np.zeros(len(far), np.int64)
+        if going.any():
+            first = np.array([self.tables[m][2][self.tables[m][0][p], g] for m, p, g in
+                              zip(self.map_of[far[going]], self.pos[far[going]], self.goal[far[going]])], np.int64)
+            move[going] = (first[:, None] == self.pos[far[going], None] + self.delta).argmax(1)
+        if not going.all():
+            move[~going] = self._nearest_goal(far[~going])
+        return move
+
+    def _nearest_goal(self, far: np.ndarray) -> np.ndarray:
+        """_look_up for walkers without a target: it is chosen (and kept in self.goal) and the first move made."""
         Wp = self.Wp
         rows = [(self.tables[m], self.tables[m][0][p]) for m, p in zip(self.map_of[far], self.pos[far])]
         dist = np.stack([t[1][r] for t, r in rows])
@@ -1093,7 +1113,9 @@ class _Walkers:
         goal = np.where(nearest & poi, key, np.iinfo(np.int64).max).argmin(1)
         first = np.array([t[2][r, g] for (t, r), g in zip(rows, goal)], np.int64)
         move = (first[:, None] == self.pos[far, None] + self.delta).argmax(1)
-        return np.where(poi.any(1) & (dist.min(1) < np.iinfo(np.int16).max), move, WAIT)
+        reached = poi.any(1) & (dist.min(1) < np.iinfo(np.int16).max)
+        self.goal[far] = np.where(reached, goal, -1)
+        return np.where(reached, move, WAIT)
 
     def _search(self, far: np.ndarray) -> np.ndarray:
         """Breadth-first search from walkers with no neighbouring target to their nearest one (ties by _key), and
@@ -1128,6 +1150,7 @@ class _Walkers:
     def step(self, move: np.ndarray) -> None:
         """Every walker moves (into a free cell, never WAIT) and covers the cell it enters."""
         rows = np.arange(len(self.pos))
+        self.goal = np.where(move == self.planned, self.goal, -1)
         self.pos = self.pos + self.delta[move]
         self.remaining = self.remaining - self.poi[rows, self.pos]
         self.poi[rows, self.pos] = False

@@ -68,6 +68,32 @@ def test_walkers_follow_the_heuristic_to_the_end(far_first):
     assert (core.remaining == 0).all()
 
 
+@pytest.mark.parametrize("far_first", [False, True])
+def test_walkers_forget_their_target_when_they_step_off_its_path(far_first):
+    """A walker keeps the target it looked up while it walks toward it, and a step elsewhere (a rollout's tried
+    move, a learner's move) makes it look again: with random steps mixed in, its moves stay the heuristic's."""
+    rng = np.random.default_rng(5)
+    core = mid_episode("maze", 16, 3, worlds=8)
+    walkers = walkers_of(core, True, True, far_first)
+    for _ in range(300):
+        live = core.remaining > 0
+        if not live.any():
+            break
+        move = core.heuristic_actions(False, True, far_first)[:, 0]
+        assert walkers.moves()[live].tolist() == move[live].tolist()
+        legal = walkers.free[np.arange(len(move))[:, None], walkers.pos[:, None] + walkers.delta]
+        random_move = np.array([rng.choice(np.flatnonzero(row)) for row in legal])
+        move = np.where(live & (rng.random(len(move)) < 0.3), random_move, move)
+        move = np.where(live, move, gw.WAIT)
+        core.step(move[:, None])
+        rows = np.flatnonzero(live)
+        step = walkers.take(rows)
+        step.step(move[rows])
+        walkers.pos[rows], walkers.remaining[rows], walkers.poi[rows], walkers.goal[rows] = (
+            step.pos, step.remaining, step.poi, step.goal)
+    assert (core.remaining == 0).all()
+
+
 def test_path_tables_by_hand():
     """A 3x3 map with its centre blocked: a ring of 8 cells. From the top-left corner (0, 0) the bottom-right
     (2, 2) is 4 steps either way round; the walk back from it takes the first closer cell in N, S, W, E order:
