@@ -1018,6 +1018,9 @@ def _symmetric_moves(k: int) -> np.ndarray:
     return moves
 
 
+_NEVER, _UNREACHED = np.iinfo(np.int64).max, np.iinfo(np.int16).max  # the walkers' 'no target' key, _path_tables' distance
+
+
 class _Walkers:
     """Single agents following the deterministic navigation heuristic (GridWorldCore.heuristic_actions with
     random_ties=False, one agent, full view) on bare maps, in lockstep: the rollouts' tries. A map is its free
@@ -1072,7 +1075,7 @@ class _Walkers:
         near = self.pos[:, None] + self.delta
         target = self.poi[rows[:, None], near]
         degree = self.poi[rows[:, None, None], near[..., None] + self.delta].sum(-1) if self.dead_ends_first else 0
-        key = np.where(target, self._key(degree, near, self.map_of[:, None]), np.iinfo(np.int64).max)
+        key = np.where(target, self._key(degree, near, self.map_of[:, None]), _NEVER)
         move = np.where(target.any(1), key.argmin(1), WAIT)
         far = np.flatnonzero(~target.any(1))
         self.goal[target.any(1)] = -1
@@ -1106,14 +1109,14 @@ class _Walkers:
         rows = [(self.tables[m], self.tables[m][0][p]) for m, p in zip(self.map_of[far], self.pos[far])]
         dist = np.stack([t[1][r] for t, r in rows])
         poi = self.poi[far]
-        dist = np.where(poi, dist, np.iinfo(np.int16).max)
+        dist = np.where(poi, dist, _UNREACHED)
         nearest = dist == dist.min(1, keepdims=True)
         degree = _neighbours(poi, Wp) if self.dead_ends_first else 0
         key = self._key(degree, np.arange(poi.shape[1]), self.map_of[far, None])
-        goal = np.where(nearest & poi, key, np.iinfo(np.int64).max).argmin(1)
+        goal = np.where(nearest & poi, key, _NEVER).argmin(1)
         first = np.array([t[2][r, g] for (t, r), g in zip(rows, goal)], np.int64)
         move = (first[:, None] == self.pos[far, None] + self.delta).argmax(1)
-        reached = poi.any(1) & (dist.min(1) < np.iinfo(np.int16).max)
+        reached = poi.any(1) & (dist.min(1) < _UNREACHED)
         self.goal[far] = np.where(reached, goal, -1)
         return np.where(reached, move, WAIT)
 
@@ -1138,7 +1141,7 @@ class _Walkers:
             if len(found):
                 degree = _neighbours(poi[found], Wp) if self.dead_ends_first else 0
                 key = self._key(degree, np.arange(poi.shape[1]), self.map_of[far[found], None])
-                key = np.where(hit[found], key, np.iinfo(np.int64).max)
+                key = np.where(hit[found], key, _NEVER)
                 goal[found], dist[found] = key.argmin(1), len(layers) - 1
         for i in range(int(dist.max()) - 1, 0, -1):  # walk back from the goal to distance 1
             near = goal[:, None] + self.delta
