@@ -784,8 +784,8 @@ def replay(scenario: Scenario, paths: list[np.ndarray], complete: bool = True) -
 
 def plan(name: str, scenarios: list[Scenario], rollout_base: str = "greedy-dead-ends") -> list[list[np.ndarray]]:
     """Paths of planner `name` for every scenario (greedy and rollout are batched over all of them;
-    rollout looks ahead with `rollout_base`, one of ROLLOUT_BASES: rollout_many for one agent,
-    team_rollout_many for several)."""
+    rollout looks ahead with `rollout_base`, one of ROLLOUT_BASES: GridWorldCore.rollout_actions at every step for
+    one agent, 3-4x faster than rollout_many and as cheap but for ties, team_rollout_many for several)."""
     if name not in PLANNERS:
         raise ValueError(f"unknown planner {name!r}; choose from {sorted(PLANNERS)}")
     if name in SINGLE_AGENT and any(len(s.starts) != 1 for s in scenarios):
@@ -793,8 +793,10 @@ def plan(name: str, scenarios: list[Scenario], rollout_base: str = "greedy-dead-
     if name == "rollout":
         if rollout_base not in ROLLOUT_BASES:
             raise ValueError(f"unknown rollout base {rollout_base!r}; choose from {sorted(ROLLOUT_BASES)}")
-        singles = iter(rollout_many([s for s in scenarios if len(s.starts) == 1], ROLLOUT_BASES[rollout_base]))
-        teams = iter(team_rollout_many([s for s in scenarios if len(s.starts) > 1], *BATCHED[rollout_base]))
+        dead_ends_first, far_first = BATCHED[rollout_base]
+        singles = iter(_run_many([s for s in scenarios if len(s.starts) == 1], lambda core, live: core.rollout_actions(
+            live, dead_ends_first, far_first=far_first).reshape(-1, 1)))  # the teacher's walkers: rollout_many's costs
+        teams = iter(team_rollout_many([s for s in scenarios if len(s.starts) > 1], dead_ends_first, far_first))
         return [next(teams if len(s.starts) > 1 else singles) for s in scenarios]
     if name in BATCHED:
         return greedy_many(scenarios, *BATCHED[name])
