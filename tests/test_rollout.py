@@ -170,6 +170,15 @@ def test_rollout_bases_and_merging_do_not_change_the_plan():
     greedy = steps(maps, cc.plan("greedy", maps))
     on_greedy = steps(maps, cc.plan("rollout", maps, rollout_base="greedy"))
     assert (on_greedy <= greedy).all()
+    far_first = steps(maps, cc.plan("greedy-far-first", maps))
+    assert (steps(maps, cc.plan("rollout", maps, rollout_base="greedy-far-first")) <= far_first).all()
+
+
+def test_the_planner_and_rollout_many_find_the_same_costs():
+    """plan("rollout") walks with the teacher's rollout_actions, rollout_many with copies of the core: both take a
+    cheapest move, so they differ at most where two moves cost the same; on these maps they never do."""
+    maps = random_maps(12, seed=2)
+    assert steps(maps, cc.plan("rollout", maps)).tolist() == steps(maps, cc.rollout_many(maps)).tolist()
 
 
 def test_multiagent_rollout_never_worse():
