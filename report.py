@@ -64,8 +64,9 @@ SENSOR_POLICIES = ("rainbow", "frontier", "frontier-row-major", "frontier-far-fi
 SENSOR_PER_SIZE, SENSOR_PER_BAND = 2, 1  # the sensors part: 52 cpp_eval maps, 16 structured_eval maps
 MOVINGAI_PLANNERS = ("greedy", "greedy-dead-ends", "wavefront", "rollout", "lkh")  # beside the agent, where collected
 MARL_EVERY, MARL_AGENTS = 10, range(1, 16)  # rainbow_marl: every 10th marl_eval layout, N = 1..15 (Fig. 7.11)
+MARL_PLANNERS = ("greedy", "greedy-dead-ends", "greedy-far-first", "partition")  # beside rainbow_marl, with claims
 FAULTY_AT, FAULTY_AGENTS = 0.5, (2, 5, 10)  # §7.5.3.3: the last agent freezes halfway
-MARL_STRUCTURED_EVERY, MARL_STRUCTURED_AGENTS = 21, 5  # rainbow_marl on structured_eval: 80 maps, N = 5
+MARL_STRUCTURED_EVERY, MARL_STRUCTURED_AGENTS = 21, range(2, 11)  # rainbow_marl on structured_eval: 80 maps, N = 2..10
 REWARD_BASELINES = ("greedy", "pretrained")  # results/marl_rewards/: these first, then one folder a training run
 T_975 = {1: 12.706, 2: 4.303, 3: 3.182, 4: 2.776, 5: 2.571, 6: 2.447, 7: 2.365, 8: 2.306, 9: 2.262}  # Student's t
 FIGURES = {"planners_by_size": "planners_overlap_by_size.png", "planners_external": "planners_external.png",
@@ -317,33 +318,31 @@ def sensor_results(model: str, per_size: int = SENSOR_PER_SIZE, per_band: int = 
 def marl_results(model: str, quiet: bool = False, every: int = MARL_EVERY, agents=MARL_AGENTS,
                  structured_every: int = MARL_STRUCTURED_EVERY) -> dict:
     """A rainbow_marl model on marl_eval (every `every`-th layout of sizes 10-30) with N = `agents` and on every
-    `structured_every`-th structured_eval map with N = MARL_STRUCTURED_AGENTS, beside the greedy planners with
-    claims, and the faulty-agent experiment of §7.5.3.3 at N = FAULTY_AGENTS."""
+    `structured_every`-th structured_eval map with N = MARL_STRUCTURED_AGENTS, beside MARL_PLANNERS (the greedy
+    planners with claims and partition), and the faulty-agent experiment of §7.5.3.3 at N = FAULTY_AGENTS."""
     result = {"every": every, "faulty_at": FAULTY_AT, "model": _model_json(model), "agents": {}, "faulty": {}}
 
     def mean(rows, key):
         return round(float(np.mean([r[key] for r in rows])), 4)
 
-    n = MARL_STRUCTURED_AGENTS
-    episodes = evaluate.scenarios_from(evaluate.Args(dataset=os.path.join(ROOT, "maps/structured_eval.npz"), agents=n,
-                                                     every=structured_every))
-    result["structured_eval"] = {"every": structured_every, "agents": n, "maps": len(episodes), "rainbow_marl": mean(
-        evaluate.run_marl(evaluate.Args(policy="marl", checkpoint=model, agents=n, quiet=quiet), episodes), "time_save")}
-    result["structured_eval"] |= {p.replace("-", "_"): mean(evaluate.run_planner(p, episodes), "time_save")
-                                  for p in ("greedy", "greedy-dead-ends", "greedy-far-first")}
+    result["structured_eval"] = {"every": structured_every, "agents": {}}
+    for n in tqdm(MARL_STRUCTURED_AGENTS, desc="rainbow_marl structured", disable=quiet or not sys.stdout.isatty()):
+        episodes = evaluate.scenarios_from(evaluate.Args(dataset=os.path.join(ROOT, "maps/structured_eval.npz"),
+                                                         agents=n, every=structured_every))
+        rows = evaluate.run_marl(evaluate.Args(policy="marl", checkpoint=model, agents=n, quiet=quiet), episodes)
+        result["structured_eval"]["maps"] = len(episodes)
+        result["structured_eval"]["agents"][str(n)] = {
+            "time_save": mean(rows, "time_save"), "completion": mean(rows, "completed")} | {
+            p.replace("-", "_"): mean(evaluate.run_planner(p, episodes), "time_save") for p in MARL_PLANNERS}
 
     for n in tqdm(agents, desc="rainbow_marl", disable=quiet or not sys.stdout.isatty()):
         scenarios, sizes = classical_cpp.marl_eval_subset(n, every)
         episodes = [(f"marl_eval.npz[{z}x{z}]", s) for s, z in zip(scenarios, sizes)]
         rows = evaluate.run_marl(evaluate.Args(policy="marl", checkpoint=model, agents=n, quiet=quiet), episodes)
-        greedy = evaluate.run_planner("greedy", episodes)
-        dead_ends = evaluate.run_planner("greedy-dead-ends", episodes)
-        far_first = evaluate.run_planner("greedy-far-first", episodes)
         result["agents"][str(n)] = {
             "maps": len(rows), "time_save": mean(rows, "time_save"), "completion": mean(rows, "completed"),
-            "heuristic_share": round(float(np.mean([r["heuristic_steps"] / (n * r["steps"]) for r in rows])), 4),
-            "greedy": mean(greedy, "time_save"), "greedy_dead_ends": mean(dead_ends, "time_save"),
-            "greedy_far_first": mean(far_first, "time_save"),
+            "heuristic_share": round(float(np.mean([r["heuristic_steps"] / (n * r["steps"]) for r in rows])), 4)} | {
+            p.replace("-", "_"): mean(evaluate.run_planner(p, episodes), "time_save") for p in MARL_PLANNERS} | {
             "by_size": {str(z): mean([r for r, k in zip(rows, sizes) if k == z], "time_save") for z in np.unique(sizes)}}
         if n in FAULTY_AGENTS:
             faulty = evaluate.run_marl(evaluate.Args(policy="marl", checkpoint=model, agents=n, faulty_agent_at=FAULTY_AT,
@@ -790,7 +789,11 @@ def marl_lines(mr: dict, rewards: dict) -> list[str]:
            f"({'met' if mr['agents'][n]['time_save'] <= t else 'not met'})"
            for n, t in REFERENCE["rainbow_marl_time_save"].items() if n in mr["agents"]]
     several = [n for n in agents if int(n) > 1]
-    below = [n for n in several if mr["agents"][n]["time_save"] < mr["agents"][n]["greedy"]]
+    beaten = [key for key in ("greedy", "partition") if key in mr["agents"][agents[0]]]  # partition where measured
+    below = [n for n in several if all(mr["agents"][n]["time_save"] < mr["agents"][n][key] for key in beaten)]
+    st = mr.get("structured_eval")
+    st_by_n = st.get("agents") if st and isinstance(st.get("agents"), dict) else None  # by N since partition's column
+    st_below = sum(a["time_save"] < min(a["greedy"], a["partition"]) for a in st_by_n.values()) if st_by_n else 0
     lines = [
         f"Model `{MODELS['rainbow_marl']}` (hidden {m['args']['hidden']}"
         + (f", from `{m['args']['init_from']}`" if m["args"].get("init_from") else "") + "): "
@@ -801,21 +804,32 @@ def marl_lines(mr: dict, rewards: dict) -> list[str]:
     if met:
         lines += [f"Targets (`report.REFERENCE`, mean $t_{{sf}}$ on sizes {sizes}): {'; '.join(met)}. Completion "
                   f"{_share(min(mr['agents'][n]['completion'] for n in agents))} at worst."
-                  + (f" Below the greedy planner at {len(below)} of the {len(several)} agent counts "
-                     f"{several[0]}-{several[-1]}." if several else ""), ""]
+                  + (f" Below the greedy planner{' and partition' * ('partition' in beaten)} at {len(below)} of the "
+                     f"{len(several)} agent counts {several[0]}-{several[-1]}" if several else "")
+                  + (f"; on `structured_eval` at {st_below} of {len(st_by_n)}." if st_by_n else "." if several else ""),
+                  ""]
     lines += [
         f"`marl_eval` sizes {sizes}, every {_ordinal(mr['every'])} layout, the first N stored starts (the N + 1-agent "
         "episode adds one agent to the N-agent one); heuristic share = fraction of agent-steps the fallback took:", "",
         table(["N", "maps", "rainbow_marl", "greedy (claims)", "greedy-dead-ends (claims)"]
-              + ["greedy-far-first (claims)"] * far + ["1/N", "completed", "heuristic share"],
+              + ["greedy-far-first (claims)"] * far + ["partition"] * ("partition" in beaten)
+              + ["1/N", "completed", "heuristic share"],
               [[n, str(mr["agents"][n]["maps"]), f"{mr['agents'][n]['time_save']:.3f}",
                 f"{mr['agents'][n]['greedy']:.3f}", f"{mr['agents'][n]['greedy_dead_ends']:.3f}"]
                + ([f"{mr['agents'][n]['greedy_far_first']:.3f}"] if far else [])
+               + ([f"{mr['agents'][n]['partition']:.3f}"] if "partition" in beaten else [])
                + [f"{1 / int(n):.3f}", _share(mr['agents'][n]['completion']),
                   f"{mr['agents'][n]['heuristic_share']:.2f}"] for n in agents]), "",
         f"![rainbow_marl time-save factor]({FIGURES['rainbow_marl']})"]
-    if "structured_eval" in mr:
-        st = mr["structured_eval"]
+    if st_by_n:
+        lines += ["", f"`structured_eval` (rooms, corridors, clutter, maze), every {_ordinal(st['every'])} map "
+                  f"({st['maps']} maps), the first N stored starts, mean $t_{{sf}}$:", "",
+                  table(["N", "rainbow_marl", "greedy (claims)", "greedy-dead-ends (claims)", "greedy-far-first (claims)",
+                         "partition", "1/N", "completed"],
+                        [[n, *[f"{a[key]:.3f}" for key in ("time_save", "greedy", "greedy_dead_ends", "greedy_far_first",
+                                                          "partition")], f"{1 / int(n):.3f}", _share(a["completion"])]
+                         for n, a in st_by_n.items()])]
+    elif st:  # collected before the table by N: one line at N = 5
         lines += ["", f"`structured_eval` (rooms, corridors, clutter, maze), every {_ordinal(st['every'])} map "
                   f"({st['maps']} maps), N = {st['agents']}, the first N stored starts: mean $t_{{sf}}$ "
                   + ", ".join(f"{name} {st[key]:.3f}" for key, name in (

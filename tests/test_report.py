@@ -413,6 +413,7 @@ def tiny(tmp_path, monkeypatch, small_report_maps):
     small_report_maps(7, 2)
     monkeypatch.setattr(report, "MARL_AGENTS", range(1, 3))
     monkeypatch.setattr(report, "MARL_STRUCTURED_EVERY", 840)  # 2 of structured_eval's 1,680 maps
+    monkeypatch.setattr(report, "MARL_STRUCTURED_AGENTS", range(2, 4))
     ch5 = np.load(ROOT / "maps" / "ch5_eval.npz")
     keep = np.flatnonzero((ch5["size"] <= 6) & (ch5["requested_obstacles"] <= 2))[::25]
     scenarios = gw.load_dataset(str(ROOT / "maps" / "ch5_eval.npz"))
@@ -469,8 +470,11 @@ def test_all_on_tiny_settings_writes_into_out_only(tiny):
     assert list(sr["structured_eval"]["full"]["frontier"]["by"]) == list(gw.STRUCTURED_FAMILIES)
     mr = json.loads((out / "rainbow_marl.json").read_text())
     assert list(mr["agents"]) == ["1", "2"] and list(mr["faulty"]) == ["2"] and mr["agents"]["2"]["maps"] == 2
-    assert list(mr["structured_eval"]) == ["every", "agents", "maps", "rainbow_marl", "greedy", "greedy_dead_ends",
-                                           "greedy_far_first"] and mr["structured_eval"]["maps"] == 2
+    assert list(mr["agents"]["2"]) == ["maps", "time_save", "completion", "heuristic_share", "greedy", "greedy_dead_ends",
+                                       "greedy_far_first", "partition", "by_size"]
+    assert list(mr["structured_eval"]["agents"]) == ["2", "3"] and mr["structured_eval"]["maps"] == 2
+    assert list(mr["structured_eval"]["agents"]["3"]) == ["time_save", "completion", "greedy", "greedy_dead_ends",
+                                                          "greedy_far_first", "partition"]
     fig55 = json.loads((out / "tabular" / "fig5_5.json").read_text())
     assert {(s["size"], s["obstacles"]) for s in fig55["settings"]} == {(4, 0), (4, 2), (6, 0), (6, 2)}
     assert "curve_rho" not in fig55["model"]
@@ -641,3 +645,24 @@ def test_the_faulty_agent_table_gives_the_time_save_over_the_maps_not_walled_off
     del mr["faulty"]["2"]["time_save_reachable"]
     rows = [line for line in "\n".join(report.marl_lines(mr, {})).splitlines() if line.startswith("| 2 | 0.550 |")]
     assert rows == ["| 2 | 0.550 | 4.900 | 99.5% | 1.100 | 1 of 2 | 100% |"]
+
+
+def test_the_marl_targets_count_the_agent_counts_below_greedy_and_partition_on_both_sets():
+    """By hand: on marl_eval N = 2 is below both planners and N = 3 only below greedy; on structured_eval N = 2 is
+    below both and N = 3 below neither: 1 of 2 on each set, and structured_eval gets a table by N."""
+    mr = json.loads((RESULTS / "rainbow_marl.json").read_text())
+    one = {k: v for k, v in mr["agents"]["2"].items() if k in ("maps", "completion", "heuristic_share", "by_size")}
+    mr["agents"] = {"1": {**one, "time_save": 1.0, "greedy": 1.1, "greedy_dead_ends": 1.0, "greedy_far_first": 1.0,
+                          "partition": 1.0},
+                    "2": {**one, "time_save": 0.5, "greedy": 0.6, "greedy_dead_ends": 0.6, "greedy_far_first": 0.5,
+                          "partition": 0.7},
+                    "3": {**one, "time_save": 0.4, "greedy": 0.45, "greedy_dead_ends": 0.4, "greedy_far_first": 0.4,
+                          "partition": 0.35}}
+    mr["faulty"] = {}
+    planners = {"greedy_dead_ends": 0.5, "greedy_far_first": 0.4}
+    mr["structured_eval"] = {"every": 21, "maps": 80, "agents": {
+        "2": {"time_save": 0.6, "completion": 1.0, "greedy": 0.7, "partition": 0.8, **planners},
+        "3": {"time_save": 0.5, "completion": 1.0, "greedy": 0.5, "partition": 0.6, **planners}}}
+    text = "\n".join(report.marl_lines(mr, {}))
+    assert "Below the greedy planner and partition at 1 of the 2 agent counts 2-3; on `structured_eval` at 1 of 2." in text
+    assert "| 3 | 0.500 | 0.500 | 0.500 | 0.400 | 0.600 | 0.333 | 100% |" in text
