@@ -23,7 +23,6 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 import torch.nn.functional as F
-import tyro
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 import gridworld  # noqa: E402
@@ -141,7 +140,7 @@ def batched_trainer(args: Args, workdir: str) -> float:
 
 
 if __name__ == "__main__":
-    args = tyro.cli(Args)
+    args = gridworld.cli(Args)
     torch.manual_seed(0)
     with tempfile.TemporaryDirectory() as workdir:
         batched = batched_trainer(args, workdir)

@@ -25,12 +25,12 @@ import time  # noqa: E402
 from dataclasses import dataclass  # noqa: E402
 
 import numpy as np  # noqa: E402
-import tyro  # noqa: E402
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 from cpu import pin  # noqa: E402
 
 import classical_cpp as cc  # noqa: E402
+import gridworld  # noqa: E402
 
 
 @dataclass
@@ -161,4 +161,4 @@ def main(args: Args) -> dict:
 
 
 if __name__ == "__main__":
-    main(tyro.cli(Args))
+    main(gridworld.cli(Args))

@@ -25,14 +25,13 @@ import time  # noqa: E402
 from dataclasses import dataclass  # noqa: E402
 
 import numpy as np  # noqa: E402
-import tyro  # noqa: E402
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 from cpu import pin  # noqa: E402
 
 import classical_cpp as cc  # noqa: E402
-from gridworld import Scenario  # noqa: E402
+from gridworld import Scenario, cli  # noqa: E402
 
 
 @dataclass
@@ -91,4 +90,4 @@ def main(args: Args) -> None:
 
 
 if __name__ == "__main__":
-    main(tyro.cli(Args))
+    main(cli(Args))

@@ -35,7 +35,6 @@ from dataclasses import asdict, dataclass, field
 import gymnasium as gym
 import numpy as np
 import torch
-import tyro
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 import gridworld  # noqa: E402
@@ -338,4 +337,4 @@ def main(args: Args) -> list[dict]:
 
 
 if __name__ == "__main__":
-    main(tyro.cli(Args))
+    main(gridworld.cli(Args))
