@@ -922,6 +922,15 @@ def check_flags(args: Args) -> None:
             folder = os.path.dirname(folder)
         if not (os.path.isdir(folder) and os.access(folder, os.W_OK)):
             raise ValueError(f"--export {args.export}: cannot write under {folder}")
+        sidecar = os.path.splitext(args.export)[0] + ".json"
+        if os.path.isfile(args.export) and os.path.isfile(sidecar):  # the other trainer's model is never replaced
+            try:
+                with open(sidecar) as f:
+                    made_by = json.load(f)["provenance"]["script"]
+            except (OSError, ValueError, KeyError, TypeError):  # no provenance to go by: an export of ours, or none
+                made_by = f"{SCRIPT}.py"
+            if made_by != f"{SCRIPT}.py":
+                raise ValueError(f"--export {args.export} holds a model of {made_by}: export this run elsewhere")
 
 
 def run_name_of(args: Args) -> str:

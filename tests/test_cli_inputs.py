@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import os
 import re
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -335,6 +336,17 @@ def test_a_bad_export_fails_before_training(tmp_path, script, export, problem):
     (tmp_path / "taken").write_text("a file, not a folder")
     cli_error(tmp_path, script, "--export", export, match=f"^error: --export .*{problem}")
     assert listing(tmp_path) == ["models", "taken"]
+
+
+@pytest.mark.parametrize("script,other", [("rainbow_cpp.py", "rainbow_marl"), ("rainbow_marl.py", "rainbow_cpp")])
+def test_an_export_never_replaces_the_other_trainers_model(tmp_path, script, other):
+    (tmp_path / "models").mkdir()
+    for ext in (".pt", ".json"):
+        shutil.copy(ROOT / "models" / f"{other}{ext}", tmp_path / "models")
+    before = {p: p.read_bytes() for p in (tmp_path / "models").iterdir()}
+    cli_error(tmp_path, script, "--export", f"models/{other}.pt",
+              match=f"^error: --export models/{other}.pt holds a model of {other}.py: export this run elsewhere$")
+    assert {p: p.read_bytes() for p in (tmp_path / "models").iterdir()} == before
 
 
 def test_a_checkpoint_resumes_only_in_its_own_trainer(tmp_path):
