@@ -28,6 +28,7 @@ import dataclasses
 import json
 import os
 import shutil
+import signal
 import subprocess
 import sys
 import tempfile
@@ -1343,6 +1344,7 @@ def main(command: Collect | Render | Plot) -> list[str]:
 
 
 if __name__ == "__main__":
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit("error: stopped by SIGTERM; --out is as it was"))  # staging removed
     try:
         main(cli())
     except ValueError as e:

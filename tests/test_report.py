@@ -487,6 +487,25 @@ def test_all_on_tiny_settings_writes_into_out_only(tiny):
     assert "**Fig. 5.4**" not in text and "machine: a test machine" in text
 
 
+def test_a_collect_stopped_by_sigterm_leaves_no_staging_folder(tmp_path):
+    """A report killed by SIGTERM (a job scheduler, `timeout`) says so in one line and removes its staging folder."""
+    import signal
+    import time
+
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONDONTWRITEBYTECODE": "1"}
+    run = subprocess.Popen([sys.executable, str(ROOT / "report.py"), "collect", "--parts", "classical", "--out",
+                            str(tmp_path / "out"), "--quiet"], env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                           text=True)
+    deadline = time.time() + 60
+    while not list(tmp_path.glob(".report-*")) and time.time() < deadline and run.poll() is None:
+        time.sleep(0.1)
+    assert list(tmp_path.glob(".report-*")), "the staging folder never appeared"
+    run.send_signal(signal.SIGTERM)
+    _, err = run.communicate(timeout=60)
+    assert run.returncode != 0 and err.strip() == "error: stopped by SIGTERM; --out is as it was"
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_a_failing_collect_leaves_out_as_it_was(tiny, monkeypatch):
     out = _copy_results(tiny)
     before = _hashes(out)
