@@ -2,6 +2,7 @@
 
     python maps/make_datasets.py            # writes maps/*.npz, a few seconds on one core
     python maps/make_datasets.py --pictures # writes docs/images/map_families.png only
+    python maps/make_datasets.py --crops maps/external/*.map --out runs   # writes runs/crops.npz only
 
 Every scenario is drawn by gridworld's Algorithms 9-10 (random obstacles, random distinct
 starts, cells unreachable from agent 0 filled) and stored with gridworld.save_dataset; load
@@ -11,6 +12,7 @@ structured_eval holds gridworld's structured map families (rooms, corridors, clu
 default FamilyParams) with columns `family` and `size`, 15 distinct starts per map and no
 pre-covered cell: the N-agent scenario is the map with its first N starts (the single-agent
 one: the first start), covered at reset, as in marl_eval.
+--crops cuts square crops from given maps (MovingAI's real layouts): maps no generator here drew, for checks.
 Every setting is checked before anything is drawn, and the files are written only once all
 are drawn, so a bad flag leaves --out untouched.
 """
@@ -27,6 +29,7 @@ sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 import gridworld  # noqa: E402
 
 SIZES = range(5, 31)  # §6.5.1.1: map sizes 5..30, one subset per size (26 subsets)
+CROP_SIDES = (16, 20, 24, 28)  # --crops: the sides of the squares cut from a map (at most its own)
 STRUCTURED_SIZES = range(10, 31)  # structured_eval: maps big enough for rooms, passages and maze cells
 NO_COVERAGE = ("marl_eval", "structured_eval")  # no covered cells stored: any prefix of the starts is a clean scenario
 PICTURE = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "docs", "images",
@@ -53,6 +56,11 @@ class Args:
     """no progress bar (there is none either when stdout is not a terminal)"""
     pictures: bool = False
     """write only docs/images/map_families.png: the first 20x20 map of each family (random: cpp_eval's)"""
+    crops: tuple[str, ...] = ()
+    """map files (MovingAI .map or ASCII): write only OUT/crops.npz, --crops-per-map square crops of each at random
+    places, --marl-agents starts each (columns family: the map's name, size: the crop's side, row and col: its corner)"""
+    crops_per_map: int = 8
+    """crops cut from each --crops map"""
 
 
 def draw(n: int, seed: int, **config) -> list[gridworld.Scenario]:
@@ -109,6 +117,55 @@ def plan(args: Args) -> list[tuple[str, list[tuple], int, dict[str, np.ndarray]]
     ]
 
 
+def reachable(free: np.ndarray, start: np.ndarray) -> np.ndarray:
+    """The free cells 4-connected to the cell `start` (row, col)."""
+    reach = np.zeros_like(free)
+    reach[tuple(start)] = True
+    while True:
+        grown = reach.copy()
+        grown[1:] |= reach[:-1]
+        grown[:-1] |= reach[1:]
+        grown[:, 1:] |= reach[:, :-1]
+        grown[:, :-1] |= reach[:, 1:]
+        grown &= free
+        if (grown == reach).all():
+            return reach
+        reach = grown
+
+
+def crops(args: Args) -> tuple[list[gridworld.Scenario], dict[str, np.ndarray]]:
+    """--crops: from each map, --crops-per-map squares of a side drawn from CROP_SIDES (at most the map's) at random
+    places, each with --marl-agents distinct random starts; the cells the first start cannot reach become
+    obstacles (as Algorithm 10), and a crop where it reaches under half the free cells, or too few for the
+    starts, is drawn again. Returns the scenarios and their columns."""
+    rng = np.random.default_rng(args.seed * 1_000_003 + 7000)
+    out, columns = [], {"family": [], "size": [], "row": [], "col": []}
+    for path in args.crops:
+        source = gridworld.load_map(path).obstacles
+        H, W = source.shape
+        for _ in range(args.crops_per_map):
+            for _ in range(1000):
+                side = int(rng.choice(CROP_SIDES))
+                h, w = min(side, H), min(side, W)
+                y, x = int(rng.integers(0, H - h + 1)), int(rng.integers(0, W - w + 1))
+                free = np.argwhere(~source[y:y + h, x:x + w])
+                if len(free) == 0:
+                    continue
+                start = free[rng.integers(len(free))]
+                reach = reachable(~source[y:y + h, x:x + w], start)
+                if reach.sum() >= max(len(free) / 2, 2 * args.marl_agents):
+                    break
+            else:
+                raise ValueError(f"--crops {path}: no crop of it in 1,000 draws has room for {args.marl_agents} starts")
+            others = np.argwhere(reach)
+            others = others[(others != start).any(1)]
+            starts = np.concatenate([start[None], others[rng.choice(len(others), args.marl_agents - 1, replace=False)]])
+            out.append(gridworld.Scenario(~reach, starts))
+            for key, value in zip(columns, (os.path.splitext(os.path.basename(path))[0], max(h, w), y, x)):
+                columns[key].append(value)
+    return out, {k: np.array(v) for k, v in columns.items()}
+
+
 def pictures(args: Args, path: str = PICTURE) -> str:
     """A PNG of one map per family: the first 20x20 map of cpp_eval (random) and of each structured_eval family,
     obstacles black, the single-agent start red and the other starts blue."""
@@ -137,7 +194,7 @@ def pictures(args: Args, path: str = PICTURE) -> str:
 def main(args: Args) -> None:
     for flag, value in (("--per-size", args.per_size), ("--p2p-total", args.p2p_total),
                         ("--marl-agents", args.marl_agents), ("--ch5-per-setting", args.ch5_per_setting),
-                        ("--structured-per-size", args.structured_per_size)):
+                        ("--structured-per-size", args.structured_per_size), ("--crops-per-map", args.crops_per_map)):
         if value < 1:
             raise ValueError(f"{flag} must be >= 1, got {value}")
     if args.pictures:
@@ -145,6 +202,16 @@ def main(args: Args) -> None:
         return
     if os.path.exists(args.out) and not os.path.isdir(args.out):
         raise ValueError(f"--out {args.out}: not a folder")
+    if args.crops:
+        scenarios, columns = crops(args)
+        try:
+            os.makedirs(args.out, exist_ok=True)
+            path = os.path.join(args.out, "crops.npz")
+            gridworld.save_dataset(path, scenarios, **columns)
+        except OSError as e:
+            raise ValueError(f"--out {args.out}: cannot write ({e.strerror})") from None
+        print(f"{path}: {len(scenarios)} crops of {len(args.crops)} map(s)")
+        return
     datasets = plan(args)
     for name, draws, _, _ in datasets:  # every setting is checked before any map is drawn or file written
         for _, _, settings in draws:

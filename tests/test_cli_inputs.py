@@ -281,11 +281,20 @@ def test_tabular_q_unwritable_table_path(tmp_path):
     (["--ch5-per-setting", "0"], "--ch5-per-setting must be >= 1"),
     (["--marl-agents", "0"], "--marl-agents must be >= 1"),
     (["--marl-agents", "25"], "marl_eval: invalid environment configuration: 25 agent\\(s\\) do not fit a 5x5 map"),
+    (["--crops", "nothing.map"], "nothing.map: cannot read map"),
+    (["--crops", "nothing.map", "--crops-per-map", "0"], "--crops-per-map must be >= 1, got 0"),
 ])
 def test_make_datasets_bad_flags_write_nothing(tmp_path, flags, problem):
     out = tmp_path / "maps"
     cli_error(tmp_path, "maps/make_datasets.py", "--out", str(out), *flags, match="^error: " + problem)
     assert listing(tmp_path) == []
+
+
+def test_make_datasets_crops_need_room_for_the_starts(tmp_path):
+    (tmp_path / "tiny.txt").write_text("....\n.@@@\n")
+    cli_error(tmp_path, "maps/make_datasets.py", "--out", "runs", "--crops", "tiny.txt",
+              match="^error: --crops tiny.txt: no crop of it in 1,000 draws has room for 15 starts$")
+    assert listing(tmp_path) == ["tiny.txt"]
 
 
 def test_make_datasets_out_must_be_a_folder(tmp_path):

@@ -74,3 +74,31 @@ def test_main_regenerates_every_committed_dataset_exactly(tmp_path, capsys):
                 assert committed[key].dtype == fresh[key].dtype
                 np.testing.assert_array_equal(committed[key], fresh[key], err_msg=f"{name}: {key}")
     assert len(capsys.readouterr().out.splitlines()) == len(names)  # one line per file, no bar off a terminal
+
+
+def test_crops_are_cut_from_their_maps_with_the_unreachable_cells_filled(tmp_path):
+    """--crops: each crop is its map's square at (row, col) with only the cells its first start cannot reach added
+    as obstacles; every free cell is reachable, the starts are distinct free cells, and the file holds nothing else."""
+    paths = [str(MAPS / "external" / "room-32-32-4.map"), str(MAPS / "external" / "random-8-8-20.map")]
+    make_datasets.main(make_datasets.Args(out=str(tmp_path), crops=tuple(paths), crops_per_map=3, marl_agents=5))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["crops.npz"]
+    data, scenarios = np.load(tmp_path / "crops.npz"), gw.load_dataset(str(tmp_path / "crops.npz"))
+    assert list(data["family"]) == ["room-32-32-4"] * 3 + ["random-8-8-20"] * 3
+    for s, family, side, y, x in zip(scenarios, data["family"], data["size"], data["row"], data["col"]):
+        source = gw.load_map(str(MAPS / "external" / f"{family}.map")).obstacles
+        assert side in make_datasets.CROP_SIDES or side == source.shape[0] == 8  # an 8x8 map is cut whole
+        square = source[y:y + side, x:x + side]
+        assert s.obstacles.shape == square.shape and (s.obstacles >= square).all()
+        free = ~s.obstacles
+        assert (make_datasets.reachable(free, s.starts[0]) == free).all()
+        assert 2 * free.sum() >= (~square).sum()  # the start reaches at least half the square's free cells
+        assert len(s.starts) == 5 and len({tuple(c) for c in s.starts}) == 5 and free[tuple(s.starts.T)].all()
+
+
+def test_reachable_floods_four_connected_cells_only():
+    free = np.array([[1, 1, 0, 1],
+                     [0, 1, 0, 1],
+                     [1, 1, 1, 0]], bool)  # (0, 3)-(1, 3) touch the rest only diagonally
+    assert (make_datasets.reachable(free, np.array([0, 0])) == np.array([[1, 1, 0, 0],
+                                                                         [0, 1, 0, 0],
+                                                                         [1, 1, 1, 0]], bool)).all()
