@@ -113,6 +113,9 @@ class Args:
     """rainbow, marl: the fallback heuristic takes the nearest cell with the fewest uncovered
     neighbours first (as the shipped models were taught); --no-heuristic-dead-ends: the
     dissertation's nearest-cell heuristic"""
+    hint_bonus: float = 0.0
+    """rainbow with a hinted model: added to the Q value of its hint's move before the greedy choice (inf: the
+    hint wherever it moves); 0 is the agent itself, anything else a variant to report apart from it"""
     rollout_base: str = "greedy-dead-ends"
     """the rollout planner's base policy: greedy-dead-ends, greedy or greedy-far-first"""
     limit: int = 0
@@ -305,11 +308,14 @@ def _rainbow(args: Args):
         raise ValueError("--faulty-agent-at and --action-loss need several agents (the marl policy)")
     q = _load(rainbow_cpp.load_policy, args.checkpoint or DEFAULT_CHECKPOINT["rainbow"], "rainbow_cpp model")
     frames = q.conv[0].in_channels // 4
+    if args.hint_bonus and not q.network().get("hint"):
+        raise ValueError("--hint-bonus needs a model with the hint input (rainbow_cpp.py --hint)")
 
     def rollout(part, i, trajectories):
         return _rows(part, rainbow_cpp.evaluate_policy(
             q, [s for _, s in part], frames, args.sensor, args.sensor_range, args.sensor_failure, args.heuristic,
-            dead_ends_first=args.heuristic_dead_ends, trajectories=trajectories, seed=args.seed + i))
+            dead_ends_first=args.heuristic_dead_ends, trajectories=trajectories, seed=args.seed + i,
+            hint_bonus=args.hint_bonus))
 
     return lambda episodes, paths=None: _sliced(episodes, 64, rollout, "rainbow", args.quiet, paths)
 
@@ -577,6 +583,10 @@ def main(args: Args) -> dict:
             raise ValueError(f"{flag} must be >= 1, got {value}")
     if args.checkpoint and args.policy not in LEARNED:
         raise ValueError(f"--checkpoint is for the learned policies ({', '.join(LEARNED)}), not {args.policy}")
+    if args.hint_bonus and args.policy != "rainbow":
+        raise ValueError(f"--hint-bonus is for the rainbow policy, not {args.policy}")
+    if not args.hint_bonus >= 0:
+        raise ValueError(f"--hint-bonus must be >= 0 (inf: the hint), got {args.hint_bonus}")
     for flag, folder in (("--out", args.out), ("--video", args.video)):
         if folder is not None and os.path.exists(folder) and not os.path.isdir(folder):
             raise ValueError(f"{flag} {folder}: exists and is not a folder")
@@ -597,15 +607,17 @@ def main(args: Args) -> dict:
 def _write(args: Args, episodes: list[tuple[str, Scenario]], results: dict[str, list[dict]],
            paths: dict[str, dict]) -> dict:
     rows, families = results[args.policy], dataset_families(args.dataset)
+    name = args.policy + (f" (hint bonus {args.hint_bonus:g})" if args.hint_bonus else "")  # never the agent's name
     summary = {"policy": args.policy, "dataset": args.dataset, "maps": list(args.maps),
-               "agents": args.agents, "seed": args.seed, **summarize(rows, families)}
+               "agents": args.agents, "seed": args.seed, **({"hint_bonus": args.hint_bonus} if args.hint_bonus else {}),
+               **summarize(rows, families)}
     files = {os.path.join(args.out, "episodes.csv"): partial(_write_csv, rows=rows),
              os.path.join(args.out, "summary.json"): partial(_write_json, data=summary)}
-    lines = [describe(args.policy, rows)]
+    lines = [describe(name, rows)]
     if families:
         lines += ["  " + describe(f, of_family(rows, families, f)) for f in summary["by_family"]]
     if len(results) > 1:
-        table, text = comparison(results, families)
+        table, text = comparison({name if p == args.policy else p: r for p, r in results.items()}, families)
         files[os.path.join(args.out, "compare.json")] = partial(_write_json, data=table)
         files[os.path.join(args.out, "compare.md")] = partial(_write_text, text=f"# {' vs '.join(results)}\n\n{text}\n")
         lines += ["", text]

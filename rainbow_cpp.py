@@ -1293,7 +1293,8 @@ def stage_config(stage: gridworld.EnvConfig, args: Args) -> gridworld.EnvConfig:
 
 def evaluate_policy(q: QNetwork, scenarios: list, frames: int, sensor: str = "full", sensor_range: int = 3,
                     sensor_failure: float = 0.0, heuristic: bool = True, random_ties: bool = False,
-                    dead_ends_first: bool = True, trajectories: list | None = None, seed: int = 0) -> dict:
+                    dead_ends_first: bool = True, trajectories: list | None = None, seed: int = 0,
+                    hint_bonus: float = 0.0) -> dict:
     """Run the deterministic policy (noise off) once on each scenario, all at once; with
     `heuristic` the navigation heuristic takes over when the agent is stuck (§6.5.2.1, the
     conditions of §6.4.2.4) and keeps control for as many new cells as the agent has been stuck
@@ -1303,7 +1304,9 @@ def evaluate_policy(q: QNetwork, scenarios: list, frames: int, sensor: str = "fu
     (row, col) at every step from the start, T that episode's own steps. The observation and the frame
     count are the network's own (q.network(), on its device); `frames` counts only for a network without
     that record. The hint and the fallback take far-first ties where the network was trained so (its far_first).
-    `seed` draws the sensor failures, so a run is repeatable."""
+    `seed` draws the sensor failures, so a run is repeatable. `hint_bonus` (a hinted network) is added to the Q value
+    of the hint's move before the greedy choice: 0 is the agent itself, inf its hint wherever the hint moves, and
+    between them the agent leaves its hint only where it prefers another move by more than the bonus."""
     spec = q.network() if hasattr(q, "network") else {"frames": frames}
     observation, frames, device = observation_settings(spec), spec["frames"], device_of(q)
     core = gridworld.GridWorldCore(eval_config(scenarios, sensor, sensor_range, sensor_failure, observation),
@@ -1323,7 +1326,12 @@ def evaluate_policy(q: QNetwork, scenarios: list, frames: int, sensor: str = "fu
             active = np.flatnonzero(~done)  # finished worlds cost no forward pass
             maps, extras = stack.get()
             action = np.full(n, gridworld.WAIT)
-            action[active] = q(*to_torch(maps[active], extras[active], device)).argmax(1).cpu().numpy()
+            values = q(*to_torch(maps[active], extras[active], device)).float().cpu().numpy()
+            if hint_bonus:
+                proposed = stack.hint[active]
+                moving = np.flatnonzero(proposed < MOVES)
+                values[moving, proposed[moving]] += hint_bonus  # inf + inf stays inf: argmax takes the hint
+            action[active] = values.argmax(1)
             if heuristic:
                 action, helped = fallback.act(core, action, done)
                 used += helped

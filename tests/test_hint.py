@@ -103,6 +103,42 @@ def test_a_hint_free_model_warm_starts_with_the_same_q(tmp_path, monkeypatch, ne
         assert torch.allclose(q(maps, torch.cat([extras, hint], 1)), loaded(maps, extras), atol=2e-3)
 
 
+def test_an_infinite_hint_bonus_walks_the_hint_and_zero_is_the_agent(tmp_path):
+    import evaluate
+
+    common = dict(policy="rainbow", dataset=str(ROOT / "maps/structured_eval.npz"), limit=6, quiet=True)
+    hint = evaluate.main(evaluate.Args(**common, hint_bonus=float("inf"), compare="greedy-far-first",
+                                       out=str(tmp_path / "inf")))
+    policies = json.loads((tmp_path / "inf" / "compare.json").read_text())["policies"]
+    assert policies == ["rainbow (hint bonus inf)", "greedy-far-first"]  # a variant never reads as the agent
+    assert hint["hint_bonus"] == float("inf")
+    evaluate.main(evaluate.Args(**{**common, "policy": "greedy-far-first"}, out=str(tmp_path / "ff")))
+
+    def overlaps(run):
+        return np.loadtxt(tmp_path / run / "episodes.csv", delimiter=",", skiprows=1, usecols=7, ndmin=1)
+
+    assert len(overlaps("inf")) == 6 and np.array_equal(overlaps("inf"), overlaps("ff"))
+    agent = evaluate.main(evaluate.Args(**common, out=str(tmp_path / "agent")))
+    assert "hint_bonus" not in agent
+
+
+@pytest.mark.parametrize("kw, msg", [(dict(hint_bonus=-0.5), "--hint-bonus must be >= 0 .*got -0.5"),
+                                     (dict(hint_bonus=float("nan")), "--hint-bonus must be >= 0 .*got nan"),
+                                     (dict(hint_bonus=1.0, policy="greedy"), "--hint-bonus is for the rainbow policy, not gr"),
+                                     (dict(hint_bonus=1.0, checkpoint="plain.pt"), "--hint-bonus needs a model with the hint")])
+def test_bad_hint_bonus_is_a_one_line_error_and_writes_nothing(tmp_path, monkeypatch, kw, msg):
+    import evaluate
+
+    monkeypatch.chdir(tmp_path)
+    rc.export(rc.build_network({**rc.COMPACT, "network": "compact", "frames": 2, "hidden": 16, "view": rc.VIEW}, 0.5),
+              rc.Args(export="plain.pt", network="compact"), {})
+    before = sorted(p.name for p in tmp_path.iterdir())
+    with pytest.raises(ValueError, match=msg) as error:
+        evaluate.main(evaluate.Args(**{"policy": "rainbow", **kw}, maps=(str(ROOT / "maps/external/empty-8-8.map"),),
+                                    out="out", quiet=True))
+    assert "\n" not in str(error.value) and sorted(p.name for p in tmp_path.iterdir()) == before
+
+
 def tiny(tmp_path, **kw) -> rc.Args:
     base = dict(run_name="t", total_steps=200, learning_starts=100, hidden=16, num_envs=4, buffer_size=4096,
                 eval_every=0, save_every=0, export=str(tmp_path / "m.pt"), stage_steps_scale=0.001,
