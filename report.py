@@ -793,7 +793,7 @@ def marl_lines(mr: dict, rewards: dict) -> list[str]:
     beaten = [key for key in ("greedy", "partition") if key in mr["agents"][agents[0]]]  # partition where measured
     below = [n for n in several if all(mr["agents"][n]["time_save"] < mr["agents"][n][key] for key in beaten)]
     st = mr.get("structured_eval")
-    st_by_n = st.get("agents") if st and isinstance(st.get("agents"), dict) else None  # by N since partition's column
+    st_by_n = st["agents"] if st else None
     st_below = sum(a["time_save"] < min(a["greedy"], a["partition"]) for a in st_by_n.values()) if st_by_n else 0
     lines = [
         f"Model `{MODELS['rainbow_marl']}` (hidden {m['args']['hidden']}"
@@ -830,13 +830,6 @@ def marl_lines(mr: dict, rewards: dict) -> list[str]:
                         [[n, *[f"{a[key]:.3f}" for key in ("time_save", "greedy", "greedy_dead_ends", "greedy_far_first",
                                                           "partition")], f"{1 / int(n):.3f}", _share(a["completion"])]
                          for n, a in st_by_n.items()])]
-    elif st:  # collected before the table by N: one line at N = 5
-        lines += ["", f"`structured_eval` (rooms, corridors, clutter, maze), every {_ordinal(st['every'])} map "
-                  f"({st['maps']} maps), N = {st['agents']}, the first N stored starts: mean $t_{{sf}}$ "
-                  + ", ".join(f"{name} {st[key]:.3f}" for key, name in (
-                      ("rainbow_marl", "rainbow_marl"), ("greedy", "greedy (claims)"),
-                      ("greedy_dead_ends", "greedy-dead-ends (claims)"), ("greedy_far_first", "greedy-far-first (claims)")))
-                  + "."]
     if mr["faulty"]:  # collected since the walled-off count exists: two more columns
         walled_on = all("walled_off" in f for f in mr["faulty"].values())
         walled_head = ["maps walled off by the frozen agent", "completed (the others)"] if walled_on else []
