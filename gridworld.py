@@ -454,7 +454,7 @@ def check_scenario(s: Scenario, where: str = "map") -> None:
             raise ValueError(f"{where}: duplicate starts")
     seed = np.zeros_like(free)
     seed[tuple(np.argwhere(free)[0])] = True
-    if (_flood(free[None], seed[None])[0] != free).any():
+    if (flood(free[None], seed[None])[0] != free).any():
         raise ValueError(f"{where}: free cells are not one 4-connected component; full coverage "
                          "is impossible")
 
@@ -563,7 +563,7 @@ def _invalid_scenarios(obstacles: np.ndarray, sizes: np.ndarray, starts: np.ndar
     free = ~obstacles & inmap
     seed = np.zeros_like(free)
     seed.reshape(M, -1)[np.arange(M), free.reshape(M, -1).argmax(1)] = True
-    bad = ~free.any((1, 2)) | (_flood(free, seed) != free).any((1, 2))
+    bad = ~free.any((1, 2)) | (flood(free, seed) != free).any((1, 2))
     used = starts[..., 0] >= 0
     y, x = np.clip(starts[..., 0], 0, H - 1), np.clip(starts[..., 1], 0, W - 1)
     outside = ((starts[..., 0] >= sizes[:, None, 0]) | (starts[..., 1] >= sizes[:, None, 1])
@@ -599,7 +599,7 @@ def _dilate(f: np.ndarray) -> np.ndarray:
     return out
 
 
-def _flood(passable: np.ndarray, seed: np.ndarray) -> np.ndarray:
+def flood(passable: np.ndarray, seed: np.ndarray) -> np.ndarray:
     """Cells of `passable` 4-connected to `seed`, for a batch (B, H, W) at once."""
     pas = _pack(passable)
     reach = _pack(seed) & pas
@@ -1428,7 +1428,7 @@ class GridWorldCore:
             obstacle[scatter] |= rank < n_obs[:, None, None]
         first = np.zeros_like(start_mask)
         first[np.arange(k), starts[:, 0, 0], starts[:, 0, 1]] = True
-        obstacle |= ~_flood(~obstacle, first)
+        obstacle |= ~flood(~obstacle, first)
         lost = active & obstacle[bidx, starts[..., 0], starts[..., 1]]
         if lost.any() and not fixed_starts:  # agents walled off: move them to agent 0's region
             start_mask &= ~obstacle
@@ -1683,7 +1683,7 @@ class GridWorldCore:
         c = self.c
         inner = (w, slice(c, c + self.H), slice(c, c + self.W))
         free = ~self.obstacle[inner] & ~self._agent_cells_mask(w, (self.active & self.frozen)[w])
-        reach = _flood(free, self._agent_cells_mask(w, (self.active & ~self.frozen)[w]))
+        reach = flood(free, self._agent_cells_mask(w, (self.active & ~self.frozen)[w]))
         return (free & ~self.covered[inner] & ~reach).sum((1, 2))
 
     def _agent_cells_mask(self, w: np.ndarray, which: np.ndarray) -> np.ndarray:
@@ -2130,7 +2130,7 @@ class GridWorldCore:
         free, covered = ~self.obstacle[inner], self.covered[inner]
         if view == "known":  # the optimistic known map: what the agent can reach and has not seen is to cover
             unknown = ~self.seen[inner]
-            free = _flood(free | unknown, self.occupied[inner])
+            free = flood(free | unknown, self.occupied[inner])
             covered = covered & ~unknown
         agent = self.active[w, 0] & ~self.frozen[w, 0]
         cells = np.where(agent[:, None], self.agent_cells()[w, 0], 0)  # an absent agent is parked off the map

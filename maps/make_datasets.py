@@ -119,18 +119,9 @@ def plan(args: Args) -> list[tuple[str, list[tuple], int, dict[str, np.ndarray]]
 
 def reachable(free: np.ndarray, start: np.ndarray) -> np.ndarray:
     """The free cells 4-connected to the cell `start` (row, col)."""
-    reach = np.zeros_like(free)
-    reach[tuple(start)] = True
-    while True:
-        grown = reach.copy()
-        grown[1:] |= reach[:-1]
-        grown[:-1] |= reach[1:]
-        grown[:, 1:] |= reach[:, :-1]
-        grown[:, :-1] |= reach[:, 1:]
-        grown &= free
-        if (grown == reach).all():
-            return reach
-        reach = grown
+    seed = np.zeros_like(free)
+    seed[tuple(start)] = True
+    return gridworld.flood(free[None], seed[None])[0]
 
 
 def crops(args: Args) -> tuple[list[gridworld.Scenario], dict[str, np.ndarray]]:

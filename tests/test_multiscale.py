@@ -144,7 +144,7 @@ def random_map(rng, h: int, w: int, n: int, density: float = 0.15, covered: floa
     obst = rng.random((h, w)) < density
     seed = np.zeros((h, w), bool)
     seed[tuple(np.argwhere(~obst)[rng.integers((~obst).sum())])] = True
-    obst |= ~gw._flood(~obst[None], seed[None])[0]
+    obst |= ~gw.flood(~obst[None], seed[None])[0]
     free = np.argwhere(~obst)
     if near is None:
         starts = free[rng.choice(len(free), n, replace=False)]
