@@ -607,19 +607,20 @@ def main(args: Args) -> dict:
 def _write(args: Args, episodes: list[tuple[str, Scenario]], results: dict[str, list[dict]],
            paths: dict[str, dict]) -> dict:
     rows, families = results[args.policy], dataset_families(args.dataset)
-    name = args.policy + (f" (hint bonus {args.hint_bonus:g})" if args.hint_bonus else "")  # never the agent's name
+    label = args.policy + (f" (hint bonus {args.hint_bonus:g})" if args.hint_bonus else "")  # never the agent's name
     summary = {"policy": args.policy, "dataset": args.dataset, "maps": list(args.maps),
                "agents": args.agents, "seed": args.seed, **({"hint_bonus": args.hint_bonus} if args.hint_bonus else {}),
                **summarize(rows, families)}
     files = {os.path.join(args.out, "episodes.csv"): partial(_write_csv, rows=rows),
              os.path.join(args.out, "summary.json"): partial(_write_json, data=summary)}
-    lines = [describe(name, rows)]
+    lines = [describe(label, rows)]
     if families:
         lines += ["  " + describe(f, of_family(rows, families, f)) for f in summary["by_family"]]
     if len(results) > 1:
-        table, text = comparison({name if p == args.policy else p: r for p, r in results.items()}, families)
+        named = {label if p == args.policy else p: r for p, r in results.items()}
+        table, text = comparison(named, families)
         files[os.path.join(args.out, "compare.json")] = partial(_write_json, data=table)
-        files[os.path.join(args.out, "compare.md")] = partial(_write_text, text=f"# {' vs '.join(results)}\n\n{text}\n")
+        files[os.path.join(args.out, "compare.md")] = partial(_write_text, text=f"# {' vs '.join(named)}\n\n{text}\n")
         lines += ["", text]
     sensed = args.policy in LEARNED or args.policy in FRONTIER
     config = {"sensor": args.sensor, "sensor_range": args.sensor_range} if sensed else None
@@ -627,14 +628,14 @@ def _write(args: Args, episodes: list[tuple[str, Scenario]], results: dict[str, 
         name, scenario = episodes[i]
         stem = os.path.join(args.video, f"{i:03d}-" + re.sub(r"[^A-Za-z0-9_-]+", "-", name).strip("-"))
         files[stem + ".mp4"] = partial(_write_video, scenario=scenario, cells=cells, config=config)
-        files[stem + ".png"] = partial(gridworld.plot_path, scenario, cells, title=_title(args.policy, name, rows[i]))
+        files[stem + ".png"] = partial(gridworld.plot_path, scenario, cells, title=_title(label, name, rows[i]))
     compared = list(results)[1:2]
     if paths[args.policy] and compared:
         name, scenario = episodes[0]
         files[os.path.join(args.out, "compare.png")] = partial(
             _write_pair, scenario=scenario, title=f"{name}, start {rows[0]['start']}",
-            sides=[(paths[p][0], f"{p}: overlap {results[p][0]['overlap']:.3f}, {results[p][0]['steps']} steps")
-                   for p in (args.policy, compared[0])])
+            sides=[(paths[p][0], f"{shown}: overlap {results[p][0]['overlap']:.3f}, {results[p][0]['steps']} steps")
+                   for p, shown in ((args.policy, label), (compared[0], compared[0]))])
     _commit(files, args.quiet)
     print("\n".join(lines))
     print(f"wrote {args.out}" + (f" and {len(paths[args.policy])} videos in {args.video}" if args.video else ""))

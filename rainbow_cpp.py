@@ -1330,7 +1330,7 @@ def evaluate_policy(q: QNetwork, scenarios: list, frames: int, sensor: str = "fu
             if hint_bonus:
                 proposed = stack.hint[active]
                 moving = np.flatnonzero(proposed < MOVES)
-                values[moving, proposed[moving]] += hint_bonus  # inf + inf stays inf: argmax takes the hint
+                values[moving, proposed[moving]] += hint_bonus  # with inf the hint's value is inf: argmax takes it
             action[active] = values.argmax(1)
             if heuristic:
                 action, helped = fallback.act(core, action, done)

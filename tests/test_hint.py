@@ -111,6 +111,7 @@ def test_an_infinite_hint_bonus_walks_the_hint_and_zero_is_the_agent(tmp_path):
                                        out=str(tmp_path / "inf")))
     policies = json.loads((tmp_path / "inf" / "compare.json").read_text())["policies"]
     assert policies == ["rainbow (hint bonus inf)", "greedy-far-first"]  # a variant never reads as the agent
+    assert (tmp_path / "inf" / "compare.md").read_text().startswith("# rainbow (hint bonus inf) vs greedy-far-first\n")
     assert hint["hint_bonus"] == float("inf")
     evaluate.main(evaluate.Args(**{**common, "policy": "greedy-far-first"}, out=str(tmp_path / "ff")))
 
