@@ -718,7 +718,6 @@ def rainbow_lines(rb: dict, c: dict) -> tuple[list[str], list[str], list[str]]:
     sizes = sorted(rb["full"], key=int)
     ext = c["external"]
     m = rb["model"]
-    far = int("greedy_far_first" in rb)  # the far-first heuristic's columns, where it was measured
     wall = _wall(m)
     first, last = REFERENCE["rainbow_cpp_sizes"]
     target = [z for z in sizes if first <= int(z) <= last]
@@ -742,17 +741,17 @@ def rainbow_lines(rb: dict, c: dict) -> tuple[list[str], list[str], list[str]]:
         f"`cpp_eval`, the first {rb['per_size']} maps of each size, mean overlap and "
         "completion; heuristic share = fraction of steps the fallback took.", "",
         table(["size", "rainbow + heuristic", "completed", "heuristic share", "rainbow alone (completed maps)",
-               "completed", "greedy planner", "greedy-dead-ends planner"] + ["greedy-far-first planner"] * far,
+               "completed", "greedy planner", "greedy-dead-ends planner", "greedy-far-first planner"],
               [[z, f"{rb['full'][z]['overlap']:.3f}", _share(rb['full'][z]['completion']),
                 f"{rb['full'][z]['heuristic_share']:.2f}", f"{rb['full_no_heuristic'][z]['overlap_completed']:.3f}",
                 _share(rb['full_no_heuristic'][z]['completion']), f"{rb['greedy'][z]['overlap']:.3f}",
-                f"{rb['greedy_dead_ends'][z]['overlap']:.3f}"] + ([f"{rb['greedy_far_first'][z]['overlap']:.3f}"] if far else [])
+                f"{rb['greedy_dead_ends'][z]['overlap']:.3f}", f"{rb['greedy_far_first'][z]['overlap']:.3f}"]
                for z in sizes]), "",
         f"![rainbow overlap by size]({FIGURES['rainbow_cpp']})", "",
         f"MovingAI maps, mean overlap over the {'/'.join(map(str, starts))} reference starts:", "",
-        table(["map", "rainbow + heuristic"] + ["greedy-far-first"] * far
+        table(["map", "rainbow + heuristic", "greedy-far-first"]
               + [p for p in MOVINGAI_PLANNERS if p in next(iter(ext.values()))],
-              [[name, f"{np.mean(v):.3f}"] + ([f"{np.mean(rb['greedy_far_first_external'][name]):.3f}"] if far else [])
+              [[name, f"{np.mean(v):.3f}", f"{np.mean(rb['greedy_far_first_external'][name]):.3f}"]
                + [f"{np.mean(ext[name][p]):.3f}" for p in MOVINGAI_PLANNERS if p in ext[name]]
                for name, v in rb["external"].items()])]
     st = c.get("structured_eval")
@@ -760,12 +759,11 @@ def rainbow_lines(rb: dict, c: dict) -> tuple[list[str], list[str], list[str]]:
         names = [p for p in ("greedy-dead-ends", "wavefront", "rollout", "lkh") if p in st["planners"]]
         full += ["", f"`structured_eval`, the planners' {st['per_band']} maps per family and size band (the section "
                  "below), mean overlap:", "",
-                 table(["family", "rainbow + heuristic", "completed", "heuristic share"] + ["greedy-far-first"] * far
-                       + names,
+                 table(["family", "rainbow + heuristic", "completed", "heuristic share", "greedy-far-first"] + names,
                        [[f, f"**{rb['structured_eval'][f]['overlap']:.3f}**",
                          _share(rb['structured_eval'][f]['completion']),
-                         f"{rb['structured_eval'][f]['heuristic_share']:.2f}"]
-                        + ([f"{rb['greedy_far_first_structured'][f]['overlap']:.3f}"] if far else [])
+                         f"{rb['structured_eval'][f]['heuristic_share']:.2f}",
+                         f"{rb['greedy_far_first_structured'][f]['overlap']:.3f}"]
                         + [f"{st['planners'][p][f]['overlap']:.3f}" for p in names] for f in rb["structured_eval"]])]
     r = rb.get("camera_range", CAMERA_RANGE)
     camera = rb[f"camera_r{r}"]
