@@ -188,6 +188,8 @@ def main(args: Args) -> None:
                         ("--structured-per-size", args.structured_per_size), ("--crops-per-map", args.crops_per_map)):
         if value < 1:
             raise ValueError(f"{flag} must be >= 1, got {value}")
+    if args.pictures and args.crops:
+        raise ValueError("--pictures and --crops write different files: give one of them")
     if args.pictures:
         print(pictures(args))
         return

@@ -283,6 +283,7 @@ def test_tabular_q_unwritable_table_path(tmp_path):
     (["--marl-agents", "25"], "marl_eval: invalid environment configuration: 25 agent\\(s\\) do not fit a 5x5 map"),
     (["--crops", "nothing.map"], "nothing.map: cannot read map"),
     (["--crops", "nothing.map", "--crops-per-map", "0"], "--crops-per-map must be >= 1, got 0"),
+    (["--crops", "nothing.map", "--pictures"], "--pictures and --crops write different files: give one of them$"),
 ])
 def test_make_datasets_bad_flags_write_nothing(tmp_path, flags, problem):
     out = tmp_path / "maps"
