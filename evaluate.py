@@ -66,6 +66,8 @@ FRONTIER = {"frontier": (True, False, False), "frontier-row-major": (False, Fals
             "frontier-far-first": (True, False, True), "frontier-rollout": (True, True, False)}
 DEFAULT_CHECKPOINT = {"rainbow": "models/rainbow_cpp.pt", "marl": "models/rainbow_marl.pt",
                       "tabular": "models/tabular_q.npz"}
+
+
 COLUMNS = ["map", "size", "n_free", "agents", "start", "steps", "revisits", "overlap", "time_save",
            "completed", "truncated", "heuristic_steps"]
 OPTIONAL_COLUMNS = ["walled_off"]  # marl --faulty-agent-at: the frozen agent left cells no working agent can reach
@@ -299,6 +301,14 @@ def _plan_rows(args: Args, policy: str, episodes: list[tuple[str, Scenario]], pa
         return _sliced(episodes, k, collect, policy, args.quiet, paths)
 
 
+def checkpoint_of(args: Args, policy: str) -> str:
+    """--checkpoint, else the shipped model: models/... under the working folder, else beside this script."""
+    if args.checkpoint:
+        return args.checkpoint
+    here = DEFAULT_CHECKPOINT[policy]
+    return here if os.path.exists(here) else os.path.join(os.path.dirname(os.path.abspath(__file__)), here)
+
+
 def _rainbow(args: Args):
     """Check the settings and load the model; returns run(episodes, paths) -> rows."""
     import rainbow_cpp
@@ -306,7 +316,7 @@ def _rainbow(args: Args):
         raise ValueError("rainbow is single-agent; use --agents 1 (marl for several)")
     if args.faulty_agent_at is not None or args.action_loss:
         raise ValueError("--faulty-agent-at and --action-loss need several agents (the marl policy)")
-    q = _load(rainbow_cpp.load_policy, args.checkpoint or DEFAULT_CHECKPOINT["rainbow"], "rainbow_cpp model")
+    q = _load(rainbow_cpp.load_policy, checkpoint_of(args, "rainbow"), "rainbow_cpp model")
     frames = q.conv[0].in_channels // 4
     if args.hint_bonus and not q.network().get("hint"):
         raise ValueError("--hint-bonus needs a model with the hint input (rainbow_cpp.py --hint)")
@@ -333,7 +343,7 @@ def _marl(args: Args):
         raise ValueError("--faulty-agent-at needs --agents >= 2 and a fraction in [0, 1]")
     if not 0 <= args.action_loss < 1:
         raise ValueError(f"--action-loss must be in [0, 1), got {args.action_loss}")
-    q = _load(rainbow_marl.load_policy, args.checkpoint or DEFAULT_CHECKPOINT["marl"], "rainbow_marl model")
+    q = _load(rainbow_marl.load_policy, checkpoint_of(args, "marl"), "rainbow_marl model")
     frames = q.conv[0].in_channels // 4
 
     def rollout(part, i, trajectories):
@@ -358,7 +368,7 @@ def _tabular(args: Args):
         raise ValueError("tabular is single-agent; use --agents 1")
     if args.sensor_failure or args.faulty_agent_at is not None or args.action_loss:
         raise ValueError("tabular: --sensor-failure, --faulty-agent-at and --action-loss are not modelled in chapter 5")
-    path = args.checkpoint or DEFAULT_CHECKPOINT["tabular"]
+    path = checkpoint_of(args, "tabular")
     table = _load(tabular_q.QTable.load, path, "tabular_q table")
     if table.sensor_range != args.sensor_range:
         raise ValueError(f"{path}: trained with r = {table.sensor_range}; --sensor-range is {args.sensor_range}")

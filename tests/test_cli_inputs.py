@@ -397,6 +397,17 @@ def test_evaluate_refuses_flags_that_would_be_ignored_or_write_among_other_files
     assert sorted(os.listdir(tmp_path / "earlier")) == ["episodes.csv", "summary.json"]
 
 
+def test_evaluate_finds_the_shipped_models_from_another_folder(tmp_path, monkeypatch):
+    import evaluate
+
+    monkeypatch.chdir(tmp_path)  # no models/ here: the default checkpoints are the ones beside evaluate.py
+    room = str(ROOT / "maps/external/empty-8-8.map")
+    for policy, agents in (("rainbow", 1), ("marl", 2), ("tabular", 1)):
+        summary = evaluate.main(evaluate.Args(policy=policy, agents=agents, maps=(room,), out=policy, quiet=True))
+        assert summary["all"]["completion_rate"] == 1.0
+    assert sorted(os.listdir(tmp_path)) == ["marl", "rainbow", "tabular"]
+
+
 def test_classical_cpp_overwrites_only_its_own_metrics(tmp_path):
     import classical_cpp as cc
 
