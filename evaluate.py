@@ -66,8 +66,6 @@ FRONTIER = {"frontier": (True, False, False), "frontier-row-major": (False, Fals
             "frontier-far-first": (True, False, True), "frontier-rollout": (True, True, False)}
 DEFAULT_CHECKPOINT = {"rainbow": "models/rainbow_cpp.pt", "marl": "models/rainbow_marl.pt",
                       "tabular": "models/tabular_q.npz"}
-
-
 COLUMNS = ["map", "size", "n_free", "agents", "start", "steps", "revisits", "overlap", "time_save",
            "completed", "truncated", "heuristic_steps"]
 OPTIONAL_COLUMNS = ["walled_off"]  # marl --faulty-agent-at: the frozen agent left cells no working agent can reach

@@ -813,8 +813,8 @@ def marl_lines(mr: dict, rewards: dict) -> list[str]:
               [[n, str(mr["agents"][n]["maps"]), f"{mr['agents'][n]['time_save']:.3f}",
                 f"{mr['agents'][n]['greedy']:.3f}", f"{mr['agents'][n]['greedy_dead_ends']:.3f}",
                 f"{mr['agents'][n]['greedy_far_first']:.3f}", f"{mr['agents'][n]['partition']:.3f}",
-                f"{1 / int(n):.3f}", _share(mr['agents'][n]['completion']),
-                  f"{mr['agents'][n]['heuristic_share']:.2f}"] for n in agents]), "",
+                f"{1 / int(n):.3f}", _share(mr['agents'][n]['completion']), f"{mr['agents'][n]['heuristic_share']:.2f}"]
+               for n in agents]), "",
         f"![rainbow_marl time-save factor]({FIGURES['rainbow_marl']})"]
     if st_by_n:
         lines += ["", f"`structured_eval` (rooms, corridors, clutter, maze), every {_ordinal(st['every'])} map "
