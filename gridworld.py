@@ -33,6 +33,7 @@ Conventions
 - Multiscale observation (observation="multiscale", not in the dissertation; after Jonnarth et al., ICML 2024):
   the deep dict with "map" uint8 (scales * 5, scale_view, scale_view), per scale s (scale_factor**s cells a
   block, agent-centred) [POI, covered, obstacle, agent means, frontier any]; see GridWorldCore._multiscale.
+  Its "out_of_bounds" counts what lies beyond the coarsest window (zero on maps up to 50x50 by default).
 """
 from __future__ import annotations
 
@@ -1716,8 +1717,7 @@ class GridWorldCore:
         B, N, V, c = self.B, self.N, self.V, self.c
         if self.config.observation == "multiscale":
             oob = np.zeros((B * N, 4, 2), np.float32)
-            if self.any_large:
-                self._compress(None, oob)  # out_of_bounds as in the deep observation (eq. 6.5), no window to edit
+            self._compress(None, oob, self._multiscale_reach())  # eq. 6.5 beyond the coarsest window, no window to edit
             battery = (self.battery / self.budget).astype(np.float32)
             return {"map": self._multiscale(),
                     "out_of_bounds": oob.reshape(B, N, 4, 2),
@@ -1737,17 +1737,26 @@ class GridWorldCore:
                 "last_action": ONE_HOT[self.last_action],
                 "battery": battery.reshape(B, 1, 1) if N == 1 else battery[:, None, None].repeat(N, 1)}
 
-    def _compress(self, maps, oob) -> np.ndarray:
+    def _multiscale_reach(self) -> tuple[int, int]:
+        """Offsets (up/left, down/right) of the last map rows/cols the coarsest multiscale block row shows
+        (equal for an odd block side; one less down/right for an even one)."""
+        cfg = self.config
+        side = cfg.scale_factor ** (cfg.scales - 1)
+        return (cfg.scale_view // 2) * side + side // 2, (cfg.scale_view // 2) * side + side - 1 - side // 2
+
+    def _compress(self, maps, oob, reach: tuple[int, int] | None = None) -> np.ndarray:
         """Algorithm 11 for agents whose map reaches past the window core (offsets beyond ±R):
         rows/cols 1 and V-2 become the mean of everything beyond, the outer ring stays
         obstacle; `oob` gets, per direction N, S, W, E, [rows/cols beyond, known points of
-        interest beyond] (eq. 6.5). maps=None: only `oob` (the multiscale observation)."""
+        interest beyond] (eq. 6.5). maps=None: only `oob`, counted beyond offsets -reach[0] and
+        +reach[1] (the multiscale observation, whose coarse scales show the map up to there)."""
         V, c, R = self.V, self.c, self.V // 2 - 1
+        lo, hi = (R, R) if reach is None else reach
         B, N = self.B, self.N
         b = np.repeat(np.arange(B), N)
         yx = self.agent_cells().reshape(-1, 2)
         y, x, h, w = yx[:, 0], yx[:, 1], self.hw[b, 0], self.hw[b, 1]
-        beyond = np.stack([y - R, h - 1 - y - R, x - R, w - 1 - x - R], 1)
+        beyond = np.stack([y - lo, h - 1 - y - hi, x - lo, w - 1 - x - hi], 1)
         far = np.flatnonzero((beyond > 0).any(1) & self.active.ravel())
         if len(far) == 0:
             return maps
@@ -1765,10 +1774,10 @@ class GridWorldCore:
         poi_rows, poi_cols = known[:, POI].sum(2)[q], known[:, POI].sum(1)[q]  # (K, H), (K, W)
         rows, cols = np.arange(self.H), np.arange(self.W)
         oob[far, :, 0] = np.maximum(beyond[far], 0)
-        oob[far, :, 1] = np.stack([(poi_rows * (rows < (yk - R)[:, None])).sum(1),
-                                   (poi_rows * (rows > (yk + R)[:, None])).sum(1),
-                                   (poi_cols * (cols < (xk - R)[:, None])).sum(1),
-                                   (poi_cols * (cols > (xk + R)[:, None])).sum(1)], 1)
+        oob[far, :, 1] = np.stack([(poi_rows * (rows < (yk - lo)[:, None])).sum(1),
+                                   (poi_rows * (rows > (yk + hi)[:, None])).sum(1),
+                                   (poi_cols * (cols < (xk - lo)[:, None])).sum(1),
+                                   (poi_cols * (cols > (xk + hi)[:, None])).sum(1)], 1)
         return maps
 
     def _average_edges(self, mk, known, q, y, x, h, w) -> None:

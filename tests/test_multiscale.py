@@ -11,7 +11,9 @@ Specification checked here against a slow reference written with explicit loops:
 - POI, covered, obstacle and agents are round-half-up(255 * cells / b**2); a cell outside the map is an
   obstacle; an unseen cell is none of them. Frontier is 255 if any cell of the block is a seen free map cell
   with an unseen 4-neighbour inside the map, else 0.
-- "out_of_bounds", "last_action" and "battery" are those of the deep observation.
+- "out_of_bounds" (eq. 6.5) counts, per direction N, S, W, E, the map rows/cols and known points of interest
+  beyond the coarsest scale's blocks (not beyond the deep window's core); "last_action" and "battery" are
+  those of the deep observation.
 """
 from __future__ import annotations
 
@@ -89,6 +91,28 @@ def reference(core: GridWorldCore) -> np.ndarray:
     return out
 
 
+def reference_out_of_bounds(core: GridWorldCore) -> np.ndarray:
+    """(B, N, 4, 2): [rows/cols, known points of interest] past the coarsest blocks' first and last map row/col."""
+    cfg = core.config
+    side, half = cfg.scale_factor ** (cfg.scales - 1), cfg.scale_view // 2
+    up = side // 2 + half * side  # the first block starts at y - side//2 - half * side
+    down = -side // 2 + half * side + side - 1 if side % 2 == 0 else up  # the last one ends at y - side//2 + ...
+    out = np.zeros((core.B, core.N, 4, 2), np.float32)
+    cells = core.agent_cells()
+    for b in range(core.B):
+        poi = cell_table(core, b)[..., POI]
+        h, w = poi.shape
+        for n in range(core.N):
+            if not core.active[b, n]:
+                continue
+            y, x = (int(v) for v in cells[b, n])
+            out[b, n, 0] = max(y - up, 0), poi[:max(y - up, 0)].sum()
+            out[b, n, 1] = max(h - 1 - y - down, 0), poi[y + down + 1:].sum()
+            out[b, n, 2] = max(x - up, 0), poi[:, :max(x - up, 0)].sum()
+            out[b, n, 3] = max(w - 1 - x - down, 0), poi[:, x + down + 1:].sum()
+    return out
+
+
 # ----------------------------------------------------------------------------- helpers
 def parse(rows: list[str]) -> Scenario:
     """'.' free, '@' obstacle, 'x' covered, digits = agent starts (in order)."""
@@ -115,6 +139,7 @@ def check(core: GridWorldCore) -> np.ndarray:
     assert obs["map"].shape == (core.B, core.N, cfg.scales * 5, cfg.scale_view, cfg.scale_view)
     assert obs["map"].dtype == np.uint8
     np.testing.assert_array_equal(obs["map"], reference(core))
+    np.testing.assert_array_equal(obs["out_of_bounds"], reference_out_of_bounds(core))
     return obs["map"]
 
 
@@ -134,7 +159,7 @@ def walk(core: GridWorldCore, steps: int, seed: int = 0, twin: GridWorldCore | N
         check(core)
         if twin is not None:
             ms, deep = core.observe(), twin.observe()
-            for k in ("out_of_bounds", "last_action", "battery"):
+            for k in ("last_action", "battery"):
                 np.testing.assert_array_equal(ms[k], deep[k])
 
 
@@ -213,6 +238,26 @@ def test_map_larger_than_the_coarsest_window_non_square_canvas():
     deep = make([s], seed=1, observation="deep")
     walk(core, 4, twin=deep)
     assert core.observe()["out_of_bounds"].any()  # the map is larger than the deep window
+
+
+def test_out_of_bounds_worked_example_one_scale():
+    """One scale of 3x3 single cells reaches one cell each way. Agent at the top-left corner of a 3x6 map with
+    one covered cell: one row beyond to the south (6 points of interest), four cols beyond to the east
+    (12 cells less the covered one)."""
+    core = make([parse(["0.x...", "......", "......"])], scales=1, scale_factor=2, scale_view=3)
+    np.testing.assert_array_equal(core.observe()["out_of_bounds"][0, 0], [[0, 0], [1, 6], [0, 0], [4, 11]])
+
+
+@pytest.mark.parametrize("side, beyond", [(50, 0), (51, 1)])
+def test_out_of_bounds_default_scales_zero_up_to_50(side, beyond):
+    """The default coarsest window (11 blocks of 9x9) shows 49 cells each way: nothing lies beyond it from any
+    corner of a 50x50 map, one row/col does on 51x51."""
+    corners = [[0, 0], [0, side - 1], [side - 1, 0], [side - 1, side - 1]]
+    core = make([Scenario(np.zeros((side, side), bool), np.array(corners))])
+    oob = core.observe()["out_of_bounds"][0]
+    np.testing.assert_array_equal(np.sort(oob[:, :, 0], 1), [[0, 0, beyond, beyond]] * 4)
+    assert (oob[:, :, 1] > 0).sum() == 8 * beyond
+    check(core)
 
 
 @pytest.mark.parametrize("factor, sensor", [(9, "camera"), (257, "full")])
