@@ -824,24 +824,19 @@ def marl_lines(mr: dict, rewards: dict) -> list[str]:
                         [[n, *[f"{a[key]:.3f}" for key in ("time_save", "greedy", "greedy_dead_ends", "greedy_far_first",
                                                           "partition")], f"{1 / int(n):.3f}", _share(a["completion"])]
                          for n, a in st_by_n.items()])]
-    if mr["faulty"]:  # collected since the walled-off count exists: two more columns
-        walled_on = all("walled_off" in f for f in mr["faulty"].values())
-        walled_head = ["maps walled off by the frozen agent", "completed (the others)"] if walled_on else []
-        rest_on = walled_on and all("time_save_reachable" in f for f in mr["faulty"].values())
-        walled_head += ["N, one faulty (the others)"] if rest_on else []  # a walled-off map covers less: not comparable
-
+    if mr["faulty"]:
         def walled(n, f):
-            if not walled_on:
-                return []
-            done, rest = f["completion_reachable"], f.get("time_save_reachable")
-            return ([f"{f['walled_off']} of {mr['agents'][n]['maps']}", "—" if done is None else _share(done)]
-                    + (["—" if rest is None else f"{rest:.3f}"] if rest_on else []))
+            done, rest = f["completion_reachable"], f["time_save_reachable"]
+            return [f"{f['walled_off']} of {mr['agents'][n]['maps']}", "—" if done is None else _share(done),
+                    "—" if rest is None else f"{rest:.3f}"]
 
         lines += [
             "", f"Faulty agent (§7.5.3.3, Fig. 7.12): the last agent freezes once "
             f"{100 * mr.get('faulty_at', FAULTY_AT):.0f}% of the points of interest are covered; "
             "mean $t_{sf}$ beside N and N - 1 working agents on the same maps:", "",
-            table(["N", "N working", "N, one faulty", "completed (faulty)", "N - 1 working"] + walled_head,
+            table(["N", "N working", "N, one faulty", "completed (faulty)", "N - 1 working",
+                   "maps walled off by the frozen agent", "completed (the others)",
+                   "N, one faulty (the others)"],  # a walled-off map covers less: its t_sf is not comparable
                   [[n, f"{mr['agents'][n]['time_save']:.3f}", f"{f['time_save']:.3f}", _share(f["completion"]),
                     f"{mr['agents'][str(int(n) - 1)]['time_save']:.3f}" if str(int(n) - 1) in mr["agents"] else "—"]
                    + walled(n, f) for n, f in mr["faulty"].items()])]

@@ -117,13 +117,6 @@ def plan(args: Args) -> list[tuple[str, list[tuple], int, dict[str, np.ndarray]]
     ]
 
 
-def reachable(free: np.ndarray, start: np.ndarray) -> np.ndarray:
-    """The free cells 4-connected to the cell `start` (row, col)."""
-    seed = np.zeros_like(free)
-    seed[tuple(start)] = True
-    return gridworld.flood(free[None], seed[None])[0]
-
-
 def crops(args: Args) -> tuple[list[gridworld.Scenario], dict[str, np.ndarray]]:
     """--crops: from each map, --crops-per-map squares of a side drawn from CROP_SIDES (at most the map's) at random
     places, each with --marl-agents distinct random starts; the cells the first start cannot reach become
@@ -143,7 +136,9 @@ def crops(args: Args) -> tuple[list[gridworld.Scenario], dict[str, np.ndarray]]:
                 if len(free) == 0:
                     continue
                 start = free[rng.integers(len(free))]
-                reach = reachable(~source[y:y + h, x:x + w], start)
+                seed = np.zeros((1, h, w), bool)
+                seed[0, start[0], start[1]] = True
+                reach = gridworld.flood(~source[None, y:y + h, x:x + w], seed)[0]
                 if reach.sum() >= max(len(free) / 2, 2 * args.marl_agents):
                     break
             else:

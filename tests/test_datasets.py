@@ -90,15 +90,20 @@ def test_crops_are_cut_from_their_maps_with_the_unreachable_cells_filled(tmp_pat
         square = source[y:y + side, x:x + side]
         assert s.obstacles.shape == square.shape and (s.obstacles >= square).all()
         free = ~s.obstacles
-        assert (make_datasets.reachable(free, s.starts[0]) == free).all()
+        seed = np.zeros_like(free)
+        seed[tuple(s.starts[0])] = True
+        assert (gw.flood(free[None], seed[None])[0] == free).all()
         assert 2 * free.sum() >= (~square).sum()  # the start reaches at least half the square's free cells
         assert len(s.starts) == 5 and len({tuple(c) for c in s.starts}) == 5 and free[tuple(s.starts.T)].all()
 
 
-def test_reachable_floods_four_connected_cells_only():
+def test_flood_reaches_four_connected_cells_only():
     free = np.array([[1, 1, 0, 1],
                      [0, 1, 0, 1],
                      [1, 1, 1, 0]], bool)  # (0, 3)-(1, 3) touch the rest only diagonally
-    assert (make_datasets.reachable(free, np.array([0, 0])) == np.array([[1, 1, 0, 0],
-                                                                         [0, 1, 0, 0],
-                                                                         [1, 1, 1, 0]], bool)).all()
+    seed = np.zeros_like(free)
+    seed[0, 0] = True
+    expected = np.array([[1, 1, 0, 0],
+                         [0, 1, 0, 0],
+                         [1, 1, 1, 0]], bool)
+    assert (gw.flood(free[None], seed[None])[0] == expected).all()
