@@ -1717,7 +1717,9 @@ class GridWorldCore:
         B, N, V, c = self.B, self.N, self.V, self.c
         if self.config.observation == "multiscale":
             oob = np.zeros((B * N, 4, 2), np.float32)
-            self._compress(None, oob, self._multiscale_reach())  # eq. 6.5 beyond the coarsest window, no window to edit
+            reach = self._multiscale_reach()
+            if self.hw.max() > min(reach) + 1:  # a map reaches past the coarsest window: eq. 6.5 beyond it
+                self._compress(None, oob, reach)
             battery = (self.battery / self.budget).astype(np.float32)
             return {"map": self._multiscale(),
                     "out_of_bounds": oob.reshape(B, N, 4, 2),
