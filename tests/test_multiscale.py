@@ -95,8 +95,8 @@ def reference_out_of_bounds(core: GridWorldCore) -> np.ndarray:
     """(B, N, 4, 2): [rows/cols, known points of interest] past the coarsest blocks' first and last map row/col."""
     cfg = core.config
     side, half = cfg.scale_factor ** (cfg.scales - 1), cfg.scale_view // 2
-    up = side // 2 + half * side  # the first block starts at y - side//2 - half * side
-    down = -side // 2 + half * side + side - 1 if side % 2 == 0 else up  # the last one ends at y - side//2 + ...
+    up = side // 2 + half * side  # the first block row starts at y - side//2 - half * side
+    down = half * side + side - 1 - side // 2  # the last one ends at y - side//2 + half * side + side - 1
     out = np.zeros((core.B, core.N, 4, 2), np.float32)
     cells = core.agent_cells()
     for b in range(core.B):
