@@ -1,6 +1,7 @@
 """Regenerate the evaluation datasets in maps/ (deterministic from --seed).
 
-    python maps/make_datasets.py            # writes maps/*.npz, a few seconds on one core
+    python maps/make_datasets.py --overwrite   # rewrites the committed maps/*.npz, a few seconds on one core
+    python maps/make_datasets.py --out runs/maps   # the same files elsewhere
     python maps/make_datasets.py --pictures # writes docs/images/map_families.png only
     python maps/make_datasets.py --crops maps/external/*.map --out runs   # writes runs/crops.npz only
 
@@ -14,7 +15,8 @@ pre-covered cell: the N-agent scenario is the map with its first N starts (the s
 one: the first start), covered at reset, as in marl_eval.
 --crops cuts square crops from given maps (MovingAI's real layouts): maps no generator here drew, for checks.
 Every setting is checked before anything is drawn, and the files are written only once all
-are drawn, so a bad flag leaves --out untouched.
+are drawn, so a bad flag leaves --out untouched. A file already in --out (the committed maps/*.npz by default) is
+replaced only with --overwrite.
 """
 from __future__ import annotations
 
@@ -61,6 +63,8 @@ class Args:
     places, --marl-agents starts each (columns family: the map's name, size: the crop's side, row and col: its corner)"""
     crops_per_map: int = 8
     """crops cut from each --crops map"""
+    overwrite: bool = False
+    """replace .npz files already in --out (without it such a file is an error and nothing is written)"""
 
 
 def draw(n: int, seed: int, **config) -> list[gridworld.Scenario]:
@@ -190,6 +194,12 @@ def main(args: Args) -> None:
         return
     if os.path.exists(args.out) and not os.path.isdir(args.out):
         raise ValueError(f"--out {args.out}: not a folder")
+    datasets = [] if args.crops else plan(args)
+    names = ["crops"] if args.crops else [name for name, _, _, _ in datasets]
+    present = [f"{name}.npz" for name in names if os.path.exists(os.path.join(args.out, f"{name}.npz"))]
+    if present and not args.overwrite:
+        raise ValueError(f"--out {args.out} already holds {', '.join(present)}: --overwrite replaces "
+                         f"{'it' if len(present) == 1 else 'them'}, or give another --out")
     if args.crops:
         scenarios, columns = crops(args)
         try:
@@ -200,7 +210,6 @@ def main(args: Args) -> None:
             raise ValueError(f"--out {args.out}: cannot write ({e.strerror})") from None
         print(f"{path}: {len(scenarios)} crops of {len(args.crops)} map(s)")
         return
-    datasets = plan(args)
     for name, draws, _, _ in datasets:  # every setting is checked before any map is drawn or file written
         for _, _, settings in draws:
             try:

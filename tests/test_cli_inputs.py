@@ -298,6 +298,24 @@ def test_make_datasets_crops_need_room_for_the_starts(tmp_path):
     assert listing(tmp_path) == ["tiny.txt"]
 
 
+def test_make_datasets_replaces_files_only_with_overwrite(tmp_path):
+    """A dataset already in --out (the committed maps/ by default) is an error, and nothing is written, unless
+    --overwrite is given."""
+    (tmp_path / "cpp_eval.npz").write_bytes(b"mine")
+    cli_error(tmp_path, "maps/make_datasets.py", "--out", ".", "--per-size", "1",
+              match="^error: --out . already holds cpp_eval.npz: --overwrite replaces it, or give another --out$")
+    assert listing(tmp_path) == ["cpp_eval.npz"] and (tmp_path / "cpp_eval.npz").read_bytes() == b"mine"
+    crop = ["--crops", str(ROOT / "maps" / "external" / "random-8-8-20.map"), "--crops-per-map", "1",
+            "--marl-agents", "2"]
+    (tmp_path / "crops.npz").write_bytes(b"mine")
+    cli_error(tmp_path, "maps/make_datasets.py", "--out", ".", *crop, match="already holds crops.npz")
+    assert (tmp_path / "crops.npz").read_bytes() == b"mine"
+    done = subprocess.run([sys.executable, str(ROOT / "maps" / "make_datasets.py"), "--out", ".", *crop,
+                           "--overwrite"], cwd=tmp_path, capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    assert len(gw.load_dataset(str(tmp_path / "crops.npz"))) == 1
+
+
 def test_make_datasets_out_must_be_a_folder(tmp_path):
     (tmp_path / "file").write_text("")
     cli_error(tmp_path, "maps/make_datasets.py", "--out", str(tmp_path / "file"), match="--out .*file: not a folder")
