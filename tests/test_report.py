@@ -6,6 +6,7 @@ every part runs in seconds; rendering and plotting run on the committed results/
 """
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import os
@@ -314,6 +315,24 @@ def test_structured_and_rollout_parts_are_collected_with_classical(tmp_path, cap
     assert report.parts_to_collect(reuse) == []
 
 
+def test_a_part_whose_json_is_there_needs_overwrite(tmp_path):
+    """Collecting into a folder that holds a part's JSON (the committed results/ by default) is an error before
+    anything runs, unless --overwrite replaces it or --reuse keeps it."""
+    (tmp_path / "tabular").mkdir()
+    for rel in ("rollout.json", os.path.join("tabular", "fig5_5.json")):
+        (tmp_path / rel).write_text("{}")
+    args = report.Collect(out=str(tmp_path), parts=("tabular", "team_rollout", "rollout"))
+    with pytest.raises(ValueError, match=f"^--out {tmp_path} already holds tabular/fig5_5.json, rollout.json: "
+                                         "--overwrite replaces them, --reuse keeps them, or give another --out$"):
+        report.parts_to_collect(args)
+    with pytest.raises(ValueError, match="holds rollout.json: --overwrite replaces it, --reuse keeps it"):
+        report.main(dataclasses.replace(args, parts=("rollout",)))
+    assert (tmp_path / "rollout.json").read_text() == "{}" and sorted(p.name for p in tmp_path.iterdir()) == [
+        "rollout.json", "tabular"]
+    assert report.parts_to_collect(dataclasses.replace(args, overwrite=True)) == ["tabular", "team_rollout", "rollout"]
+    assert report.parts_to_collect(dataclasses.replace(args, reuse=True)) == ["team_rollout"]
+
+
 def test_collect_structured_and_rollout_on_tiny_maps(tmp_path, small_report_maps):
     small_report_maps(7, 1, structured=1)
     out = tmp_path / "new"
@@ -515,7 +534,7 @@ def test_a_failing_collect_leaves_out_as_it_was(tiny, monkeypatch):
 
     monkeypatch.setattr(report, "tabular_results", broken)
     with pytest.raises(ValueError, match="tabular broke"):  # classical ran, then tabular failed
-        report.main(report.All(out=str(out), parts=("classical", "tabular"), per_size=1, quiet=True))
+        report.main(report.All(out=str(out), parts=("classical", "tabular"), per_size=1, quiet=True, overwrite=True))
     assert _hashes(out) == before and not _leftovers(tiny)
     with pytest.raises(ValueError, match="tabular broke"):
         report.main(report.Collect(out=str(tiny / "new" / "folder"), parts=("classical", "tabular"), quiet=True))
