@@ -16,9 +16,10 @@ overlap, time-save factor and steps, completion rate; overall and by map size) a
 Every metric is counted by gridworld's own environment. Policies: the planners of classical_cpp.py
 (greedy, greedy-dead-ends, greedy-far-first, rollout, boustrophedon, spiral-stc, wavefront, lkh, partition) and the
 chapter-6 agent `rainbow` (rainbow_cpp.py; --checkpoint, default models/rainbow_cpp.pt, noise off, heuristic
-fallback unless --no-heuristic), the chapter-7 agents `marl` (rainbow_marl.py; default
-models/rainbow_marl.pt, decentralised: every agent acts on its own observation; --action-loss,
---faulty-agent-at), the chapter-5 agent `tabular` (tabular_q.py; --checkpoint, default
+fallback unless --no-heuristic; `rainbow-rollout`: the same agent searching at test time, each step the
+one-step rollout of the agent with its fallback, a full-information planner to report apart from it), the
+chapter-7 agents `marl` (rainbow_marl.py; default models/rainbow_marl.pt, decentralised: every agent acts on
+its own observation; --action-loss, --faulty-agent-at), the chapter-5 agent `tabular` (tabular_q.py; --checkpoint, default
 models/tabular_q.npz, greedy, the heuristic at dead ends unless --no-heuristic, --sensor builds
 the heuristic's map), and the exploration baselines, policies of the agent's known map under --sensor,
 --sensor-range and --sensor-failure (one agent): `frontier` (the navigation heuristic: nearest known point
@@ -60,12 +61,12 @@ import classical_cpp
 import gridworld
 from gridworld import Scenario
 
-LEARNED = ("rainbow", "marl", "tabular")
+LEARNED = ("rainbow", "rainbow-rollout", "marl", "tabular")
 # policies of the agent's known map (the heuristic, or its one-step rollout): name -> (dead_ends_first, rollout, far_first)
 FRONTIER = {"frontier": (True, False, False), "frontier-row-major": (False, False, False),
             "frontier-far-first": (True, False, True), "frontier-rollout": (True, True, False)}
-DEFAULT_CHECKPOINT = {"rainbow": "models/rainbow_cpp.pt", "marl": "models/rainbow_marl.pt",
-                      "tabular": "models/tabular_q.npz"}
+DEFAULT_CHECKPOINT = {"rainbow": "models/rainbow_cpp.pt", "rainbow-rollout": "models/rainbow_cpp.pt",
+                      "marl": "models/rainbow_marl.pt", "tabular": "models/tabular_q.npz"}
 COLUMNS = ["map", "size", "n_free", "agents", "start", "steps", "revisits", "overlap", "time_save",
            "completed", "truncated", "heuristic_steps"]
 OPTIONAL_COLUMNS = ["walled_off"]  # marl --faulty-agent-at: the frozen agent left cells no working agent can reach
@@ -78,7 +79,8 @@ VIDEO_SECONDS = 30  # long episodes play faster than 10 steps/s so that a video 
 class Args:
     policy: str = "greedy"
     """a classical_cpp planner (greedy, greedy-dead-ends, greedy-far-first, rollout, boustrophedon, spiral-stc,
-    wavefront, lkh, partition), a learned agent (rainbow, marl, tabular) or a policy of the known map under
+    wavefront, lkh, partition), a learned agent (rainbow, marl, tabular; rainbow-rollout: rainbow with search at
+    test time, the one-step rollout of the agent at every step, full information only) or a policy of the known map under
     --sensor (frontier: the heuristic with dead-ends-first ties, the better on random maps; frontier-row-major:
     row-major ties; frontier-far-first: far-first ties, the better on structured maps; frontier-rollout: its
     one-step rollout on the known map)"""
@@ -307,25 +309,30 @@ def checkpoint_of(args: Args, policy: str) -> str:
     return here if os.path.exists(here) else os.path.join(os.path.dirname(os.path.abspath(__file__)), here)
 
 
-def _rainbow(args: Args):
-    """Check the settings and load the model; returns run(episodes, paths) -> rows."""
+def _rainbow(args: Args, rollout: bool = False):
+    """Check the settings and load the model; returns run(episodes, paths) -> rows. With `rollout`, the agent with
+    search at test time (rainbow-rollout): each step the one-step rollout of the agent and its fallback."""
     import rainbow_cpp
+    if rollout and args.sensor != "full":
+        raise ValueError("rainbow-rollout finishes its tries on the true map: full information only (--sensor full)")
     if args.agents != 1:
         raise ValueError("rainbow is single-agent; use --agents 1 (marl for several)")
     if args.faulty_agent_at is not None or args.action_loss:
         raise ValueError("--faulty-agent-at and --action-loss need several agents (the marl policy)")
-    q = _load(rainbow_cpp.load_policy, checkpoint_of(args, "rainbow"), "rainbow_cpp model")
+    q = _load(rainbow_cpp.load_policy, checkpoint_of(args, "rainbow-rollout" if rollout else "rainbow"),
+              "rainbow_cpp model")
     frames = q.conv[0].in_channels // 4
     if args.hint_bonus and not q.network().get("hint"):
         raise ValueError("--hint-bonus needs a model with the hint input (rainbow_cpp.py --hint)")
 
-    def rollout(part, i, trajectories):
+    def run(part, i, trajectories):
         return _rows(part, rainbow_cpp.evaluate_policy(
             q, [s for _, s in part], frames, args.sensor, args.sensor_range, args.sensor_failure, args.heuristic,
             dead_ends_first=args.heuristic_dead_ends, trajectories=trajectories, seed=args.seed + i,
-            hint_bonus=args.hint_bonus))
+            hint_bonus=0.0 if rollout else args.hint_bonus, rollout=rollout))
 
-    return lambda episodes, paths=None: _sliced(episodes, 64, rollout, "rainbow", args.quiet, paths)
+    name = "rainbow-rollout" if rollout else "rainbow"
+    return lambda episodes, paths=None: _sliced(episodes, 64, run, name, args.quiet, paths)
 
 
 def run_rainbow(args: Args, episodes: list[tuple[str, Scenario]], paths: dict | None = None) -> list[dict]:
@@ -544,7 +551,8 @@ def _table_row(label: str, by_policy: dict, key: str) -> str:
 def _runner(args: Args, policy: str):
     """Check `policy`'s settings and load its model; returns run(episodes, paths=None) -> rows."""
     if policy in LEARNED:
-        return {"rainbow": _rainbow, "marl": _marl, "tabular": _tabular}[policy](args)
+        return {"rainbow": _rainbow, "rainbow-rollout": partial(_rainbow, rollout=True), "marl": _marl,
+                "tabular": _tabular}[policy](args)
     if policy in FRONTIER:
         return _frontier(args, policy)
     if policy in classical_cpp.SINGLE_AGENT and args.agents != 1:

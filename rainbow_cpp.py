@@ -1262,8 +1262,6 @@ def policy_rollout_actions(core: gridworld.GridWorldCore, worlds: np.ndarray, po
     return out
 
 
-
-
 # ----------------------------------------------------------------------------- single-agent helpers
 def load_stages(args: Args) -> list[gridworld.EnvConfig]:
     if not 0.0 <= args.uncommon_patterns <= 1.0 or not 0.0 <= args.uncommon_max < 1.0:
@@ -1294,7 +1292,7 @@ def stage_config(stage: gridworld.EnvConfig, args: Args) -> gridworld.EnvConfig:
 def evaluate_policy(q: QNetwork, scenarios: list, frames: int, sensor: str = "full", sensor_range: int = 3,
                     sensor_failure: float = 0.0, heuristic: bool = True, random_ties: bool = False,
                     dead_ends_first: bool = True, trajectories: list | None = None, seed: int = 0,
-                    hint_bonus: float = 0.0) -> dict:
+                    hint_bonus: float = 0.0, rollout: bool = False) -> dict:
     """Run the deterministic policy (noise off) once on each scenario, all at once; with
     `heuristic` the navigation heuristic takes over when the agent is stuck (§6.5.2.1, the
     conditions of §6.4.2.4) and keeps control for as many new cells as the agent has been stuck
@@ -1306,7 +1304,9 @@ def evaluate_policy(q: QNetwork, scenarios: list, frames: int, sensor: str = "fu
     that record. The hint and the fallback take far-first ties where the network was trained so (its far_first).
     `seed` draws the sensor failures, so a run is repeatable. `hint_bonus` (a hinted network) is added to the Q value
     of the hint's move before the greedy choice: 0 is the agent itself, inf its hint wherever the hint moves, and
-    between them the agent leaves its hint only where it prefers another move by more than the bonus."""
+    between them the agent leaves its hint only where it prefers another move by more than the bonus. `rollout`
+    searches at test time: every step takes the one-step rollout of this policy with its fallback
+    (policy_rollout_actions; its copies finish on the true map, so it is a full-information planner)."""
     spec = q.network() if hasattr(q, "network") else {"frames": frames}
     observation, frames, device = observation_settings(spec), spec["frames"], device_of(q)
     core = gridworld.GridWorldCore(eval_config(scenarios, sensor, sensor_range, sensor_failure, observation),
@@ -1324,14 +1324,17 @@ def evaluate_policy(q: QNetwork, scenarios: list, frames: int, sensor: str = "fu
     with torch.no_grad():
         while not done.all():
             active = np.flatnonzero(~done)  # finished worlds cost no forward pass
-            maps, extras = stack.get()
             action = np.full(n, gridworld.WAIT)
-            values = q(*to_torch(maps[active], extras[active], device)).float().cpu().numpy()
-            if hint_bonus:
-                proposed = stack.hint[active]
-                moving = np.flatnonzero(proposed < MOVES)
-                values[moving, proposed[moving]] += hint_bonus  # with inf the hint's value is inf: argmax takes it
-            action[active] = values.argmax(1)
+            if rollout:
+                action[active] = policy_rollout_actions(core, active, q, stack, dead_ends_first, far_first)
+            else:
+                maps, extras = stack.get()
+                values = q(*to_torch(maps[active], extras[active], device)).float().cpu().numpy()
+                if hint_bonus:
+                    proposed = stack.hint[active]
+                    moving = np.flatnonzero(proposed < MOVES)
+                    values[moving, proposed[moving]] += hint_bonus  # with inf the hint's value is inf: argmax takes it
+                action[active] = values.argmax(1)
             if heuristic:
                 action, helped = fallback.act(core, action, done)
                 used += helped

@@ -270,3 +270,45 @@ def test_policy_rollout_teacher_run_records_its_flags(tmp_path, monkeypatch, res
     info = json.loads((tmp_path / "m.json").read_text())
     assert info["args"]["teacher"] == "policy-rollout" and info["args"]["policy_refresh"] == 50
     assert "policy-rollout teacher:" in capsys.readouterr().out
+
+
+# ----------------------------------------------------------------------------- search at test time: rainbow-rollout
+class HintedCopier(HintCopier):
+    """HintCopier with the spec evaluate_policy reads: a hinted compact network of 2 frames."""
+
+    def network(self) -> dict:
+        return dict(network="compact", frames=2, hint=True, scales=3, scale_factor=3, scale_view=11, far_first=False)
+
+    def reset_noise(self, on: bool = True):
+        pass
+
+
+def test_searching_at_test_time_walks_the_rollout_of_the_policy():
+    """evaluate_policy(rollout=True) with a policy that copies greedy-dead-ends walks the rollout planner's walk, step
+    for step: as many steps on every map, never more than the policy alone, fewer on some."""
+    scenarios = gw.generate_scenarios(10, seed=11, size=10, min_size=6, random_size=True, map_family="mixed",
+                                      number_obstacles=12, obstacles_random=True, battery_factor=5.0)
+    searched = rc.evaluate_policy(HintedCopier(), scenarios, 2, heuristic=False, rollout=True)
+    alone = rc.evaluate_policy(HintedCopier(), scenarios, 2, heuristic=False)
+    core = gw.GridWorldCore(rc.eval_config(scenarios), len(scenarios), seed=0)
+    core.configure(scenarios=scenarios)
+    core.reset()
+    steps = np.zeros(len(scenarios), np.int64)
+    while (core.remaining > 0).any():
+        steps += core.remaining > 0
+        core.step(core.rollout_actions()[:, None])
+    assert searched["steps"].tolist() == steps.tolist() and searched["completed"].all()
+    assert (searched["steps"] <= alone["steps"]).all() and (searched["steps"] < alone["steps"]).any()
+
+
+def test_rainbow_rollout_under_a_sensor_is_a_one_line_error(tmp_path, monkeypatch):
+    """Its tries finish on the true map: under a camera or LiDAR it would plan with what the agent cannot see."""
+    import evaluate
+
+    monkeypatch.chdir(tmp_path)
+    for policy, compare in (("rainbow-rollout", ""), ("rainbow", "rainbow-rollout")):
+        with pytest.raises(ValueError, match=r"^rainbow-rollout finishes its tries on the true map: full information "
+                                             r"only \(--sensor full\)$"):
+            evaluate.main(evaluate.Args(policy=policy, compare=compare, sensor="camera", quiet=True, out="out",
+                                        maps=(str(ROOT / "maps/external/empty-8-8.map"),)))
+    assert list(tmp_path.iterdir()) == []
