@@ -60,6 +60,8 @@ MODELS = {"rainbow_cpp": evaluate.DEFAULT_CHECKPOINT["rainbow"], "sensors": eval
           "tabular": evaluate.DEFAULT_CHECKPOINT["tabular"]}
 SCRIPTS = {"rainbow_cpp": "rainbow_cpp.py", "sensors": "rainbow_cpp.py", "rainbow_marl": "rainbow_marl.py",
            "tabular": "tabular_q.py"}
+ALGORITHM_NAMES = {"q-learning": "Q-learning", "sarsa": "SARSA", "double-q": "Double Q-learning",
+                   "watkins": "Watkins's Q(λ)"}  # tabular_q.py --algorithm, as the figure's title names it
 CH5_EVAL = os.path.join("maps", "ch5_eval.npz")  # Fig. 5.5's maps, with their size and requested obstacles
 CAMERA_RANGE = 3  # the sensor-based evaluation of the rainbow_cpp model (§6.5.3)
 SENSOR_RANGES, SENSOR_FAILURES = (1, 2, 3, 4, 5), (0.25, 0.5)  # Figs. 6.20-6.21 (K) and 6.22 (camera r = 3)
@@ -1200,7 +1202,7 @@ def plot_tabular(fig55: dict | None, runs: dict, folder: str) -> list[str]:
             row = [s for s in settings if s["obstacles"] == obstacles]
             ax.plot([s["size"] for s in row], [s["trained"] for s in row], marker="o", label=f"{obstacles} obstacles")
         ax.set(xlabel=f"map size N (trained on {a['min_size'] if a.get('min_size') is not None else a['size']}-{a['size']})",
-               ylabel="mean ρ", title=f"{a['algorithm']} table on ch5_eval")
+               ylabel="mean ρ", title=f"{ALGORITHM_NAMES.get(a['algorithm'], a['algorithm'])} table on ch5_eval")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
         written.append(_save(fig, folder, "fig5_5"))

@@ -97,12 +97,11 @@ def test_render_types_no_provenance_by_hand():
     for typed in ("issue #", "on a 2-core CPU machine", "one core of a 2-core CPU", "evaluate.py report",
                   "15,000 steps each", "K = 0.25", "no camera stages trained"):
         assert typed not in text
-    # some committed results JSON predate provenance (classical_cpp.json among them): every such cell says so
+    # a results JSON from before provenance was recorded: every cell of its row says so
     results = _committed()
-    legacy = [rel for part, rel in report.PARTS.items() if results[part] is not None and "provenance" not in results[part]]
-    rows = [r for r in _table_rows(text) if r.startswith(tuple(f"| `{rel}` |" for rel in legacy))]
-    assert "classical_cpp.json" in legacy and len(rows) == len(legacy)
-    assert all(r.count("not recorded") == 7 for r in rows)
+    results["classical"].pop("provenance")
+    rows = [r for r in _table_rows(report.render(results)) if r.startswith("| `classical_cpp.json` |")]
+    assert len(rows) == 1 and rows[0].count("not recorded") == 7
 
 
 def test_provenance_and_model_keys_are_read_back():
@@ -234,7 +233,7 @@ def test_headline_gets_a_structured_column_when_there_is_one():
 
 
 def test_structured_table_and_rollouts_gap_to_lkh_are_generated_from_the_numbers():
-    text = report.render(_with_new_parts(_committed()))
+    text = report.render(_with_new_parts(_without_new_parts(_committed())))
     section = text[text.index("## Structured maps (planners)"):text.index("## Sensor-based")]
     assert "| planner | rooms | corridors | clutter | maze | all | completed | plan ms/map |" in section
     assert "| rollout | 0.100 | 0.000 | 0.250 | 0.450 | 0.200 | 100% | 1.0 |" in section
@@ -304,8 +303,7 @@ def test_bad_new_part_json_is_a_value_error_naming_it(tmp_path):
 def test_structured_and_rollout_parts_are_collected_with_classical(tmp_path, capsys):
     parts = report.parts_to_collect(report.Collect(out=str(tmp_path), parts=("structured", "classical", "rollout")))
     assert parts == ["classical"] and "structured: collected with classical" in capsys.readouterr().out
-    c = json.loads((RESULTS / "classical_cpp.json").read_text())
-    c.pop("structured_eval", None)
+    c = _without_new_parts(_committed())["classical"]
     (tmp_path / "classical_cpp.json").write_text(json.dumps(c))
     reuse = report.Collect(out=str(tmp_path), parts=("classical", "structured", "rollout"), reuse=True)
     assert report.parts_to_collect(reuse) == ["structured", "rollout"]  # classical is there, without them
@@ -409,7 +407,7 @@ def test_a_part_whose_model_is_not_trained_is_skipped(tmp_path, monkeypatch, cap
     assert "rainbow_marl: skipped" in capsys.readouterr().out
     shutil.copy(RESULTS / "classical_cpp.json", tmp_path / "classical_cpp.json")
     assert report.parts_to_collect(report.Collect(out=str(tmp_path), reuse=True)) == [
-        "structured", "rollout", "team_rollout", "sensors", "rainbow_cpp", "tabular"]  # classical_cpp.json alone
+        "team_rollout", "sensors", "rainbow_cpp", "tabular"]  # classical_cpp.json alone, structured and rollout in it
 
 
 # ----------------------------------------------------------------------------- collect, on tiny settings
