@@ -21,7 +21,8 @@ shortest-path metric closure solved by LKH-3 through elkai: the near-optimal ref
 (one-step lookahead: each move finished by a base, greedy-dead-ends by default, the best taken; also
 for several agents, one agent after the other).
 Several agents: greedy (with claims), partition (balanced connected regions, then greedy in
-each), and `lower_bound` = ceil((n_free - N) / N) steps.
+each), and `lower_bound`: no schedule is shorter than ceil(n_poi / N) steps or than the checkerboard
+parity of the cells allows.
 """
 from __future__ import annotations
 
@@ -729,13 +730,22 @@ def partition(scenario: Scenario) -> list[np.ndarray]:
 
 
 def lower_bound(scenario: Scenario) -> int:
-    """No schedule of N agents finishes in fewer steps than ceil(n_poi / N): each step covers
-    at most N cells (n_poi = free cells not yet covered; ceil((n_free - N) / N) when only the
-    starts are)."""
+    """No schedule of N agents finishes in fewer steps T than ceil(n_poi / N), each step covering at most N cells
+    (n_poi = free cells not yet covered; ceil((n_free - N) / N) when only the starts are), nor than the checkerboard
+    allows: a move changes the colour (row + col) % 2 of the agent's cell, so in T steps an agent reaches at most
+    ceil(T / 2) cells of the other colour than its start and floor(T / 2) of its own (a wait or a bump only loses a
+    step). One agent from the minority colour of a 5x5 map, for instance, needs two revisits at least."""
     covered = np.zeros_like(scenario.obstacles) if scenario.covered is None else scenario.covered
     covered = covered.copy()
     covered[scenario.starts[:, 0], scenario.starts[:, 1]] = True
-    return math.ceil((~scenario.obstacles & ~covered).sum() / len(scenario.starts))
+    poi = ~scenario.obstacles & ~covered
+    colour = np.indices(poi.shape).sum(0) % 2
+    need = [int((poi & (colour == k)).sum()) for k in (0, 1)]
+    agents = np.bincount(colour[scenario.starts[:, 0], scenario.starts[:, 1]], minlength=2)  # by their start's colour
+    steps = math.ceil(poi.sum() / len(scenario.starts))
+    while any(agents[k] * (steps // 2) + agents[1 - k] * ((steps + 1) // 2) < need[k] for k in (0, 1)):
+        steps += 1
+    return steps
 
 
 PLANNERS = {"greedy": greedy, "greedy-dead-ends": greedy_dead_ends, "greedy-far-first": greedy_far_first,

@@ -231,6 +231,11 @@ def rainbow_results(per_size: int, p2p_maps: int, model: str, quiet: bool = Fals
                 for z, g in out.items()}
 
     result = {"per_size": per_size, "camera_range": CAMERA_RANGE, "model": _model_json(model)}
+    bound = {}  # the overlap of the shortest walk classical_cpp.lower_bound allows, by size: no walk goes below it
+    for (_, s), z in zip(episodes, sizes):
+        poi = int((~s.obstacles & ~s.covered).sum())
+        bound.setdefault(str(z), []).append((classical_cpp.lower_bound(s) - poi) / max(poi, 1))
+    result["lower_bound"] = {z: round(float(np.mean(v)), 4) for z, v in bound.items()}
     with _bar(9, "rainbow_cpp", quiet) as bar:
         for key, kw in (("full", {}), ("full_no_heuristic", {"heuristic": False}),
                         (f"camera_r{CAMERA_RANGE}", {"sensor": "camera", "sensor_range": CAMERA_RANGE})):
@@ -744,18 +749,23 @@ def rainbow_lines(rb: dict, c: dict) -> tuple[list[str], list[str], list[str]]:
                  f"the greedy planner at every size): completion "
                  f"{_share(min(rb['full'][z]['completion'] for z in target))} at worst; mean overlap ≤ {goal} at "
                  f"{sum(rb['full'][z]['overlap'] <= goal for z in target)} of {len(target)} sizes (worst "
-                 f"{rb['full'][worst]['overlap']:.3f} at {worst}); below greedy at {below} of {len(target)}.", ""]
+                 f"{rb['full'][worst]['overlap']:.3f} at {worst}); below greedy at {below} of {len(target)}."
+                 + _unreachable(rb, target, goal), ""]
     starts = sorted({len(v) for v in rb["external"].values()})
+    bound = "lower_bound" in rb
     full += [
         f"`cpp_eval`, the first {rb['per_size']} maps of each size, mean overlap and "
-        "completion; heuristic share = fraction of steps the fallback took.", "",
+        "completion; heuristic share = fraction of steps the fallback took"
+        + ("; lower bound = the overlap below which no walk goes (`classical_cpp.lower_bound`: every cell once, and "
+           "the checkerboard parity of the cells)." if bound else "."), "",
         table(["size", "rainbow + heuristic", "completed", "heuristic share", "rainbow alone (completed maps)",
-               "completed", "greedy planner", "greedy-dead-ends planner", "greedy-far-first planner"],
+               "completed", "greedy planner", "greedy-dead-ends planner", "greedy-far-first planner"]
+              + ["lower bound"] * bound,
               [[z, f"{rb['full'][z]['overlap']:.3f}", _share(rb['full'][z]['completion']),
                 f"{rb['full'][z]['heuristic_share']:.2f}", f"{rb['full_no_heuristic'][z]['overlap_completed']:.3f}",
                 _share(rb['full_no_heuristic'][z]['completion']), f"{rb['greedy'][z]['overlap']:.3f}",
                 f"{rb['greedy_dead_ends'][z]['overlap']:.3f}", f"{rb['greedy_far_first'][z]['overlap']:.3f}"]
-               for z in sizes]), "",
+               + ([f"{rb['lower_bound'][z]:.3f}"] if bound else []) for z in sizes]), "",
         f"![rainbow overlap by size]({FIGURES['rainbow_cpp']})", "",
         f"MovingAI maps, mean overlap over the {'/'.join(map(str, starts))} reference starts:", "",
         table(["map", "rainbow + heuristic", "greedy-far-first"]
@@ -784,6 +794,13 @@ def rainbow_lines(rb: dict, c: dict) -> tuple[list[str], list[str], list[str]]:
            f"{100 * p['optimal']:.1f}% on a shortest path, {100 * p['completion']:.1f}% reached, "
            f"{p['mean_extra_steps']:.2f} steps beyond the shortest path on average."]
     return full, sensor, p2p
+
+
+def _unreachable(rb: dict, sizes: list[str], goal: float) -> str:
+    """The sizes where no walk at all meets the overlap target on these maps (the lower bound is above it)."""
+    over = [z for z in sizes if "lower_bound" in rb and rb["lower_bound"][z] > goal]
+    return "".join(f" At {z}x{z} no walk meets {goal} on these maps: the lower bound is "
+                   f"{rb['lower_bound'][z]:.3f}." for z in over)
 
 
 def marl_lines(mr: dict, rewards: dict) -> list[str]:

@@ -277,7 +277,7 @@ def test_lkh_middle_of_1x7_corridor_is_optimal():
     assert m["steps"] == 9
     assert m["new_cells"] == 6 and m["revisits"] == 3
     assert m["overlap"] == pytest.approx(0.5) and m["time_save"] == pytest.approx(1.5)
-    assert m["lower_bound"] == 6
+    assert m["lower_bound"] == 7  # parity: 4 cells of the other colour than col 3's take 7 steps
 
 
 @pytest.mark.parametrize("corner", [[0, 0], [0, 3], [3, 0], [3, 3]])
@@ -488,10 +488,32 @@ def test_lower_bound_hand_values():
     # 10 free cells, 3 agents: ceil(7 / 3) = 3
     s = make(np.array([[0] * 5, [0] * 5, [1] * 5], bool), [[0, 0], [0, 1], [1, 4]])
     assert cc.lower_bound(s) == 3
-    assert cc.lower_bound(make(np.zeros((1, 7)), [[0, 3]])) == 6  # ceil(6 / 1)
+    assert cc.lower_bound(make(np.zeros((1, 7)), [[0, 3]])) == 7  # cols 0, 2, 4, 6: 4 of the other colour
     assert cc.lower_bound(make(np.zeros((4, 4)), [[0, 0], [3, 3]])) == 7  # ceil(14 / 2)
     assert cc.lower_bound(make(np.zeros((3, 3)), [[0, 0], [0, 1], [0, 2], [1, 1]])) == 2  # ceil(5/4)
     assert cc.lower_bound(make(np.zeros((1, 2)), [[0, 0]])) == 1
+
+
+def test_lower_bound_checkerboard_hand_values():
+    # 3x3 from an edge cell: 5 cells of the other colour (corners, centre) need 9 steps; no Hamiltonian path exists
+    assert cc.lower_bound(make(np.zeros((3, 3)), [[0, 1]])) == 9
+    assert cc.lower_bound(make(np.zeros((3, 3)), [[1, 1]])) == 8  # from the centre: round the ring, no revisit
+    assert cc.lower_bound(make(np.zeros((1, 3)), [[0, 1]])) == 3  # both ends are the other colour
+    assert cc.lower_bound(make(np.zeros((1, 3)), [[0, 1], [0, 0]])) == 1  # agent 0 takes col 2 in one step
+    # 5x5 from (0, 1): 13 cells of the other colour need 2 * 13 - 1 = 25 steps, one more than n_poi
+    assert cc.lower_bound(make(np.zeros((5, 5)), [[0, 1]])) == 25
+    assert cc.lower_bound(make(np.zeros((5, 5)), [[0, 0]])) == 24
+
+
+@pytest.mark.parametrize("agents", [1, 2, 5])
+def test_lower_bound_never_above_a_walk(agents):
+    for seed in range(6):
+        s = random_scenario(5 + seed, 0.1, seed=700 + seed, agents=agents)
+        for name in ("greedy", "greedy-dead-ends", "rollout"):
+            if agents == 1 or name != "rollout":
+                assert cc.replay(s, cc.PLANNERS[name](s))["steps"] >= cc.lower_bound(s)
+    s = make(np.zeros((5, 5)), [[0, 1]])
+    assert cc.replay(s, cc.lkh(s))["steps"] == cc.lower_bound(s) == 25  # the bound is tight there
 
 
 def test_lower_bound_respects_precovered_cells():
@@ -614,7 +636,7 @@ def test_cli_boustrophedon_on_an_external_map(tmp_path):
     assert r.returncode == 0, r.stderr
     (row,) = [json.loads(ln) for ln in out.read_text().splitlines()]
     assert row["size"] == [8, 8] and row["completed"] is True
-    assert row["n_poi_start"] == 50 and row["steps"] >= 50 and row["lower_bound"] == 50
+    assert row["n_poi_start"] == 50 and row["steps"] >= 53 and row["lower_bound"] == 53  # parity: 50 cells, 3 revisits
     (line,) = [ln for ln in r.stdout.splitlines() if ln.strip()]  # one readable line, no progress bar (not a tty)
     assert line.startswith("boustrophedon: 1 scenario(s), 1 agent(s) each, ") and line.endswith(f"-> {out}")
     assert f"mean overlap {row['overlap']:.4f}" in line and f"mean time-save factor {row['time_save']:.4f}" in line

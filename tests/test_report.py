@@ -104,6 +104,21 @@ def test_render_types_no_provenance_by_hand():
     assert len(rows) == 1 and rows[0].count("not recorded") == 7
 
 
+def test_lower_bound_column_and_the_sizes_no_walk_meets_the_target():
+    results = _committed()
+    sizes = list(results["rainbow_cpp"]["full"])
+    results["rainbow_cpp"]["lower_bound"] = {z: 0.0577 if z == "5" else 0.01 for z in sizes}
+    text = report.render(results)
+    lines = text.splitlines()
+    header = next(i for i, ln in enumerate(lines) if ln.startswith("| size | rainbow + heuristic |"))
+    assert lines[header].endswith("| lower bound |")
+    assert lines[header + 2].startswith("| 5 |") and lines[header + 2].endswith("| 0.058 |")
+    assert "At 5x5 no walk meets 0.05 on these maps: the lower bound is 0.058." in text
+    assert "At 6x6" not in text
+    results["rainbow_cpp"].pop("lower_bound")  # a JSON from before the bound: no column, no sentence
+    assert "lower bound is" not in report.render(results).split("## ")[3]
+
+
 def test_provenance_and_model_keys_are_read_back():
     results = _committed()
     results["classical"]["provenance"] = {"git_commit": "abcdef0123456789", "git_dirty": True, "cpu": "Test CPU 9000",
@@ -475,6 +490,8 @@ def test_all_on_tiny_settings_writes_into_out_only(tiny):
     rb = json.loads((out / "rainbow_cpp.json").read_text())
     assert sorted(rb["full"], key=int) == ["5", "6", "7"] and rb["p2p"]["maps"] == 2 and rb["model"]["stage"] == "tiny"
     assert all(v["completion"] == 1.0 for v in rb["full"].values())  # the heuristic finishes what the net cannot
+    assert list(rb["lower_bound"]) == ["5", "6", "7"]
+    assert all(0 <= rb["lower_bound"][z] <= rb[p][z]["overlap"] for z in rb["full"] for p in ("full", "greedy"))
     assert list(rb["structured_eval"]) == [*gw.STRUCTURED_FAMILIES, "all"]
     assert all(v["completion"] == 1.0 for v in rb["structured_eval"].values())
     sr = json.loads((out / "rainbow_sensors.json").read_text())
