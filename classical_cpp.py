@@ -734,7 +734,7 @@ def lower_bound(scenario: Scenario) -> int:
     (n_poi = free cells not yet covered; ceil((n_free - N) / N) when only the starts are), nor than the checkerboard
     allows: a move changes the colour (row + col) % 2 of the agent's cell, so in T steps an agent reaches at most
     ceil(T / 2) cells of the other colour than its start and floor(T / 2) of its own (a wait or a bump only loses a
-    step). One agent from the minority colour of a 5x5 map, for instance, needs two revisits at least."""
+    step). One agent starting on the minority colour of an open 5x5 map, for instance, needs a revisit."""
     covered = np.zeros_like(scenario.obstacles) if scenario.covered is None else scenario.covered
     covered = covered.copy()
     covered[scenario.starts[:, 0], scenario.starts[:, 1]] = True

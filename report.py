@@ -1149,18 +1149,27 @@ def plot_rainbow(rb: dict, c: dict, folder: str) -> list[str]:
     import matplotlib.pyplot as plt
     sizes = sorted(rb["full"], key=int)
     r = rb.get("camera_range", CAMERA_RANGE)
-    teacher = rb["model"]["args"].get("heuristic_dead_ends")  # the heuristic the model imitated
+    args = rb["model"]["args"]
+    teacher = ("greedy_far_first" if args.get("heuristic_far_first") else  # the heuristic the model imitated
+               "greedy_dead_ends" if args.get("heuristic_dead_ends") else "greedy")
     fig, ax = plt.subplots(figsize=(9.5, 4))
     for key, stat, label in (("full", "overlap", "rainbow + heuristic fallback"),
                              ("full_no_heuristic", "overlap_completed", "rainbow alone (completed maps)"),
                              (f"camera_r{r}", "overlap", f"rainbow, camera r = {r}"),
-                             ("greedy", "overlap", "greedy planner" + (" (the teacher)" if teacher is False else "")),
-                             ("greedy_dead_ends", "overlap", "greedy-dead-ends planner" + (" (the teacher)" if teacher else ""))):
+                             ("greedy", "overlap", "greedy planner"),
+                             ("greedy_dead_ends", "overlap", "greedy-dead-ends planner"),
+                             ("greedy_far_first", "overlap", "greedy-far-first planner")):
+        if key not in rb:
+            continue
+        label += " (the teacher)" if key == teacher else ""
         ax.plot([int(z) for z in sizes], [rb[key][z][stat] for z in sizes], marker=".", label=label)
     lkh = c["cpp_eval"]["lkh"]
     bands = [b for b in lkh if "-" in b]
     ax.plot([np.mean([int(x) for x in b.split("-")]) for b in bands], [lkh[b] for b in bands], "k*",
             label="LKH (size-band means)")
+    if "lower_bound" in rb:
+        ax.plot([int(z) for z in sizes], [rb["lower_bound"][z] for z in sizes], "k--", lw=0.8,
+                label="lower bound (no walk below)")
     ax.axhline(REFERENCE["rainbow_cpp_overlap"], color="grey", ls=":", label=f"target {REFERENCE['rainbow_cpp_overlap']}")
     ax.set(xlabel="map size (edge, cells)", ylabel="mean overlap $O_v$", yscale="log",
            title=f"rainbow_cpp on cpp_eval ({rb['per_size']} maps per size)")
