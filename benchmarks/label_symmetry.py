@@ -16,8 +16,9 @@ from __future__ import annotations
 
 import os
 
-for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):  # before numpy loads
-    os.environ[_var] = "1"
+from cpu import pin  # sets one BLAS thread: imported before numpy
+
+# isort: split
 
 import json  # noqa: E402
 import sys  # noqa: E402
@@ -28,7 +29,6 @@ import numpy as np  # noqa: E402
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
-from cpu import pin  # noqa: E402
 
 import gridworld as gw  # noqa: E402
 
