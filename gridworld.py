@@ -453,9 +453,7 @@ def check_scenario(s: Scenario, where: str = "map") -> None:
             raise ValueError(f"{where}: start [{y}, {x}] is on an obstacle")
         if len({(int(y), int(x)) for y, x in st}) != len(st):
             raise ValueError(f"{where}: duplicate starts")
-    seed = np.zeros_like(free)
-    seed[tuple(np.argwhere(free)[0])] = True
-    if (flood(free[None], seed[None])[0] != free).any():
+    if not one_component(free[None])[0]:
         raise ValueError(f"{where}: free cells are not one 4-connected component; full coverage "
                          "is impossible")
 
@@ -562,9 +560,7 @@ def _invalid_scenarios(obstacles: np.ndarray, sizes: np.ndarray, starts: np.ndar
     M, H, W = obstacles.shape
     inmap = (np.arange(H)[:, None] < sizes[:, None, None, 0]) & (np.arange(W) < sizes[:, None, None, 1])
     free = ~obstacles & inmap
-    seed = np.zeros_like(free)
-    seed.reshape(M, -1)[np.arange(M), free.reshape(M, -1).argmax(1)] = True
-    bad = ~free.any((1, 2)) | (flood(free, seed) != free).any((1, 2))
+    bad = ~free.any((1, 2)) | ~one_component(free)
     used = starts[..., 0] >= 0
     y, x = np.clip(starts[..., 0], 0, H - 1), np.clip(starts[..., 1], 0, W - 1)
     outside = ((starts[..., 0] >= sizes[:, None, 0]) | (starts[..., 1] >= sizes[:, None, 1])
@@ -609,6 +605,15 @@ def flood(passable: np.ndarray, seed: np.ndarray) -> np.ndarray:
         if np.array_equal(grown, reach):
             return _unpack(reach, passable.shape[-1])
         reach = grown
+
+
+def one_component(free: np.ndarray) -> np.ndarray:
+    """Whether the free cells of each map of a batch (B, H, W) are one 4-connected component (B,); no free cell
+    counts as one."""
+    B = len(free)
+    seed = np.zeros_like(free)
+    seed.reshape(B, -1)[np.arange(B), free.reshape(B, -1).argmax(1)] = True
+    return (flood(free, seed & free) == free).all((1, 2))
 
 
 def _distance_from(passable: np.ndarray, seed: np.ndarray) -> np.ndarray:

@@ -37,6 +37,7 @@ import random
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 import warnings
 import zipfile
@@ -920,8 +921,10 @@ def check_flags(args: Args) -> None:
         folder = os.path.dirname(os.path.abspath(args.export))
         while not os.path.exists(folder):  # the folders save_checkpoint would make: the nearest existing one
             folder = os.path.dirname(folder)
-        if not (os.path.isdir(folder) and os.access(folder, os.W_OK)):
-            raise ValueError(f"--export {args.export}: cannot write under {folder}")
+        try:  # a file made there, since os.access lets root write anywhere (/proc too)
+            tempfile.TemporaryFile(dir=folder).close()
+        except OSError as e:
+            raise ValueError(f"--export {args.export}: cannot write under {folder} ({e.strerror})") from None
         sidecar = os.path.splitext(args.export)[0] + ".json"
         if os.path.isfile(args.export) and os.path.isfile(sidecar):  # the other trainer's model is never replaced
             try:

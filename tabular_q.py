@@ -26,6 +26,7 @@ import os
 import shlex
 import subprocess
 import sys
+import tempfile
 import time
 import zipfile
 import zlib
@@ -593,8 +594,10 @@ def main(args: Args) -> dict:
     parent = os.path.dirname(os.path.abspath(table_path))
     while not os.path.exists(parent):  # the folders save() would create: can the nearest existing one take them?
         parent = os.path.dirname(parent)
-    if not os.path.isdir(parent) or not os.access(parent, os.W_OK):
-        raise ValueError(f"--table-path {table_path}: cannot write under {parent}")
+    try:  # a file made there, since os.access lets root write anywhere (/proc too)
+        tempfile.TemporaryFile(dir=parent).close()
+    except OSError as e:
+        raise ValueError(f"--table-path {table_path}: cannot write under {parent} ({e.strerror})") from None
     args = dataclasses.replace(args, run_name=run_name, table_path=table_path)
     encoder = Encoder(args.memory, args.sensor_range)
     tables = 2 if args.algorithm == "double-q" else 1

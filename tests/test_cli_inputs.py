@@ -268,10 +268,11 @@ def test_tabular_q_bad_init_tables(files, tmp_path, name, flags, problem):
     assert listing(work) == [] and listing(tmp_path) == sorted(before + ["work"])
 
 
-def test_tabular_q_unwritable_table_path(tmp_path):
+@pytest.mark.parametrize("table_path", ["taken/t.npz", "/proc/t.npz"])  # /proc: os.access says yes to root
+def test_tabular_q_unwritable_table_path(tmp_path, table_path):
     (tmp_path / "taken").write_text("a file, not a folder")
-    cli_error(tmp_path, "tabular_q.py", "--table-path", "taken/t.npz",
-              match="^error: --table-path taken/t.npz: cannot write under")
+    cli_error(tmp_path, "tabular_q.py", "--table-path", table_path,
+              match=f"^error: --table-path {table_path}: cannot write under")
     assert listing(tmp_path) == ["taken"]
 
 
@@ -359,7 +360,8 @@ def test_a_trainer_never_overwrites_an_earlier_run(tmp_path, script, made):
 
 @pytest.mark.parametrize("script", ["rainbow_cpp.py", "rainbow_marl.py"])
 @pytest.mark.parametrize("export,problem", [("models", "must name a .pt file"), ("model.npz", "must name a .pt file"),
-                                            ("taken/model.pt", "cannot write under .*taken")])
+                                            ("taken/model.pt", "cannot write under .*taken"),
+                                            ("/proc/model.pt", "cannot write under /proc")])
 def test_a_bad_export_fails_before_training(tmp_path, script, export, problem):
     (tmp_path / "models").mkdir()
     (tmp_path / "taken").write_text("a file, not a folder")

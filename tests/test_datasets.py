@@ -107,3 +107,16 @@ def test_flood_reaches_four_connected_cells_only():
                          [0, 1, 0, 0],
                          [1, 1, 1, 0]], bool)
     assert (gw.flood(free[None], seed[None])[0] == expected).all()
+
+
+def test_one_component_tells_split_maps_from_connected_ones():
+    split = np.array([[1, 1, 0, 1],
+                      [0, 1, 0, 1],
+                      [1, 1, 1, 0]], bool)  # the right column touches the rest only diagonally
+    joined = split.copy()
+    joined[2, 3] = True  # (1, 3)-(2, 3)-(2, 2) joins them
+    walled = np.zeros_like(split)
+    walled[1, 1] = True  # a single free cell
+    assert gw.one_component(np.stack([split, joined, walled])).tolist() == [False, True, True]
+    with pytest.raises(ValueError, match="not one 4-connected component"):
+        gw.check_scenario(gw.Scenario(~split, np.array([[0, 0]])))
