@@ -9,8 +9,9 @@ every such structured_eval map (classical_cpp.structured_team_subset). Its makes
 interest at the start) = (1 + overlap + idle) / N, where overlap = (agent moves onto covered cells) / n and idle =
 (agent-steps without a move) / n, both as shares of the work (each agent's share is n / N). Beside it, one agent
 (the first start) covers the same map with greedy-far-first: its overlap is what the team would pay per share if
-teaming cost nothing. The team's overlap is also split by tenths of the makespan. Prints a Markdown table and one
-JSON line.
+teaming cost nothing. The team's overlap is also split by tenths of the makespan, the agent-steps into new cells,
+covered cells and waits, and each agent's last new cell is timed as a share of the makespan (the mean agent, and the
+first to run out). Prints a Markdown table and one JSON line.
 """
 from __future__ import annotations
 
@@ -46,18 +47,20 @@ class Args:
     """the CPU to pin to (-1: no pinning)"""
 
 
-def shares(scenario: Scenario, paths: list[np.ndarray]) -> tuple[float, float, float, np.ndarray]:
-    """t_sf, overlap and idle as shares of the work (gridworld's counts: classical_cpp.replay), and the overlap by
-    tenths of the makespan, of one plan."""
+def shares(scenario: Scenario, paths: list[np.ndarray]) -> tuple[float, float, float, np.ndarray, np.ndarray]:
+    """t_sf, overlap and idle as shares of the work (gridworld's counts: classical_cpp.replay), the overlap by
+    tenths of the makespan, and each agent's last new cell as a share of the makespan, of one plan."""
     m = cc.replay(scenario, paths)
     n, T, N = m["n_poi_start"], m["steps"], len(paths)
-    covered, by_tenth = scenario.covered.copy(), np.zeros(10)
-    for t in range(1, T + 1):  # which step each revisit came at
-        for p in paths:
+    covered, by_tenth, last_new = scenario.covered.copy(), np.zeros(10), np.zeros(N)
+    for t in range(1, T + 1):  # which step each revisit and each agent's last new cell came at
+        for i, p in enumerate(paths):
             if t < len(p) and (p[t] != p[t - 1]).any():
-                by_tenth[min(9, 10 * (t - 1) // T)] += covered[p[t][0], p[t][1]]
+                revisit = covered[p[t][0], p[t][1]]
+                by_tenth[min(9, 10 * (t - 1) // T)] += revisit
+                last_new[i] = last_new[i] if revisit else t
                 covered[p[t][0], p[t][1]] = True
-    return T / n, m["revisits"] / n, (N * T - m["revisits"] - m["new_cells"]) / n, by_tenth / n
+    return T / n, m["revisits"] / n, (N * T - m["revisits"] - m["new_cells"]) / n, by_tenth / n, last_new / T
 
 
 def main(args: Args) -> None:
@@ -75,17 +78,26 @@ def main(args: Args) -> None:
     per_map = [shares(s, p) for s, p in zip(team, cc.plan("greedy-far-first", team))]
     tsf, overlap, idle = np.mean([m[:3] for m in per_map], 0)
     tenths = np.mean([m[3] for m in per_map], 0)
+    last_new = np.mean([m[4].mean() for m in per_map])  # the mean agent's last new cell, share of the makespan
+    first_done = np.mean([m[4].min() for m in per_map])  # the first agent out of new cells
+    work = 1 + overlap + idle  # agent-steps as shares of the work: new cells (1), revisits, waits
     single = np.mean([shares(s, p)[1] for s, p in zip(alone, cc.plan("greedy-far-first", alone))])
     result = {"agents": args.agents, "maps": len(team), "set": where, "time_save": round(float(tsf), 4),
               "team_overlap": round(float(overlap), 4), "team_idle": round(float(idle), 4),
               "single_agent_overlap": round(float(single), 4),
               "team_overlap_by_tenth": [round(float(v), 4) for v in tenths],
+              "agent_steps_new_covered_idle": [round(float(v / work), 4) for v in (1, overlap, idle)],
+              "last_new_cell_mean_agent": round(float(last_new), 4),
+              "last_new_cell_first_agent": round(float(first_done), 4),
               "seconds": round(time.perf_counter() - tick, 1)}
     print(f"greedy-far-first, N = {args.agents}, {len(team)} maps ({where}):\n")
     print("| t_sf | team overlap (share of the work) | team idle | one agent's overlap, same maps |")
     print("|---|---|---|---|")
     print(f"| {tsf:.4f} | {overlap:.4f} | {idle:.4f} | {single:.4f} |\n")
     print("team overlap by tenth of the makespan: " + " ".join(f"{v:.4f}" for v in tenths))
+    print(f"agent-steps: {1 / work:.1%} onto new cells, {overlap / work:.1%} onto covered cells, {idle / work:.1%} "
+          f"without a move; last new cell at {last_new:.1%} of the makespan for the mean agent, "
+          f"{first_done:.1%} for the first agent to run out")
     print(json.dumps(result))
 
 
