@@ -58,7 +58,8 @@ def shares(scenario: Scenario, paths: list[np.ndarray]) -> tuple[float, float, f
             if t < len(p) and (p[t] != p[t - 1]).any():
                 revisit = covered[p[t][0], p[t][1]]
                 by_tenth[min(9, 10 * (t - 1) // T)] += revisit
-                last_new[i] = last_new[i] if revisit else t
+                if not revisit:
+                    last_new[i] = t
                 covered[p[t][0], p[t][1]] = True
     return T / n, m["revisits"] / n, (N * T - m["revisits"] - m["new_cells"]) / n, by_tenth / n, last_new / T
 
