@@ -34,6 +34,7 @@ import os
 import pickle
 import platform
 import random
+import resource
 import signal
 import subprocess
 import sys
@@ -224,6 +225,10 @@ class Args:
     """held-out maps per evaluation (cpp_eval sizes up to the current stage's)"""
     save_every: int = 25_000
     """environment steps between checkpoints (0: only at the end)"""
+    curve_every: int = 0
+    """environment steps between points of the learning curve (0: none): the greedy policy with and without the
+    fallback on fixed held-out maps (every 5th cpp_eval map, every 14th structured_eval map), with the run's steps/s
+    and peak memory, appended to runs/RUN/curve.json and kept in the checkpoint (so a resumed run goes on with it)"""
     resume: bool = False
     """continue runs/RUN/checkpoint.pt (needs --run-name; the replay memory restarts empty)"""
     init_from: str | None = None
@@ -704,13 +709,14 @@ def labelled(args: Args) -> bool:
 
 
 def learn(q: QNetwork, target: QNetwork, optimizer: torch.optim.Optimizer, replay: Replay, args: Args,
-          beta: float, rng: np.random.Generator,
-          margin_loss_weight: float | None = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
+          beta: float, rng: np.random.Generator, margin_loss_weight: float | None = None,
+          diagnose: bool = False) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None, dict | None]:
     """One gradient step on a prioritized batch, on the networks' device (the batch handed over in one copy):
     the double-DQN TD loss (plus the margin loss at `margin_loss_weight`, default --margin-loss; with a hint its
     departures, labels other than the heuristic's move, weigh --departure-weight), new priorities, the soft
     target update (eq. 6.19) and fresh noise; with --amp the forward passes run under bf16 autocast, the losses
-    in float32. Returns the TD loss, the mean Q(s, a) and the margin loss (None without labels), detached."""
+    in float32. Returns the TD loss, the mean Q(s, a) and the margin loss (None without labels), detached, and with
+    `diagnose` the update's diagnostics (None without)."""
     device = device_of(q)
     idx, (m_, e_, nm, ne, a_, ret, boot, weight, *label) = replay.batch(args.batch_size, beta, rng, device,
                                                                         labels=labelled(args))
@@ -728,15 +734,38 @@ def learn(q: QNetwork, target: QNetwork, optimizer: torch.optim.Optimizer, repla
         loss = loss + (args.margin_loss if margin_loss_weight is None else margin_loss_weight) * margin_loss
     optimizer.zero_grad()
     loss.backward()
-    nn.utils.clip_grad_norm_(q.parameters(), args.max_grad_norm)
+    grad_norm = nn.utils.clip_grad_norm_(q.parameters(), args.max_grad_norm)
     optimizer.step()
     replay.update_priorities(idx, (y - q_sa).detach().cpu().numpy())
+    diagnostics = diagnostics_of(q, m_, e_, q_all.detach(), (y - q_sa).detach(), weight, grad_norm) if diagnose else None
     with torch.no_grad():  # eq. 6.19
         for p, tp in zip(q.parameters(), target.parameters()):
             tp.lerp_(p, args.tau)
     q.reset_noise()
     target.reset_noise()
-    return td_loss.detach(), q_sa.detach().mean(), None if margin_loss is None else margin_loss.detach()
+    return td_loss.detach(), q_sa.detach().mean(), None if margin_loss is None else margin_loss.detach(), diagnostics
+
+
+def diagnostics_of(q: nn.Module, maps: torch.Tensor, extras: torch.Tensor, q_all: torch.Tensor, td_error: torch.Tensor,
+                   weight: torch.Tensor, grad_norm: torch.Tensor) -> dict[str, float]:
+    """What a DQN practitioner watches, from one update's batch (logged as diagnostics/*): the spread of Q over the
+    moves (the advantage stream's range) and the gap between the two best, the mean |TD error|, the smallest
+    importance weight, the gradient norm before clipping, the mean noisy sigma, and the share of dead units (never
+    active on the batch) in the first layer of each dueling stream: a stalled learner shows here first."""
+    first = {"value": [], "advantage": []}
+    hooks = [getattr(q, k)[0].register_forward_hook(lambda _, __, out, seen=seen: seen.append(out))
+             for k, seen in first.items()]
+    with torch.no_grad():
+        q(maps, extras)
+    for hook in hooks:
+        hook.remove()
+    best_two = q_all.topk(2, 1).values
+    sigma = torch.stack([m.weight_sigma.abs().mean() for m in q.modules() if isinstance(m, NoisyLinear)])
+    return {"q_spread": (q_all.max(1).values - q_all.min(1).values).mean().item(),
+            "action_gap": (best_two[:, 0] - best_two[:, 1]).mean().item(), "td_error": td_error.abs().mean().item(),
+            "importance_weight_min": weight.min().item(), "grad_norm": float(grad_norm),
+            "noisy_sigma": sigma.mean().item(),
+            **{f"dead_units_{k}": (seen[0] <= 0).all(0).float().mean().item() for k, seen in first.items()}}
 
 
 # ----------------------------------------------------------------------------- evaluation
@@ -1047,7 +1076,8 @@ def start_run(args: Args, n_stages: int) -> tuple:
     observation come from that file (a flag contradicting it is an error), else from the flags, else the
     defaults (with_network). Only reads: every bad file or flag is a ValueError before anything is written.
     Returns (args with every default filled in, run folder, online and target networks, optimizer, numpy
-    generator, (global_step, stage index, wall seconds), the parent's lineage)."""
+    generator, (global_step, stage index, wall seconds, the learning curve so far), the parent's lineage).
+    A resumed run gets its target network back too (a checkpoint without one: a copy of the online network)."""
     rng = seed_everything(args.seed, args.threads, args.torch_deterministic)
     run_name = run_name_of(args)
     run_dir = os.path.join("runs", run_name)
@@ -1066,7 +1096,7 @@ def start_run(args: Args, n_stages: int) -> tuple:
     q, target = (build_network(spec, args.sigma0).to(device) for _ in range(2))
     optimizer = torch.optim.Adam(q.parameters(), lr=args.learning_rate, eps=args.adam_eps,
                                  fused=True)  # fused: ~7x faster than the per-tensor loop on CPU
-    progress, parent = (0, 0, 0.0), None
+    progress, parent, target_state = (0, 0, 0.0, []), None, None
     if state is not None:
         if not (isinstance(state["stage"], int) and 0 <= state["stage"] < n_stages):
             raise ValueError(f"{checkpoint}: stage {state['stage']} of a curriculum of {n_stages} stages")
@@ -1078,13 +1108,17 @@ def start_run(args: Args, n_stages: int) -> tuple:
         except UNREADABLE as e:
             raise ValueError(f"{checkpoint}: does not fit this run "
                              f"({reason(e)})") from None
-        progress, parent = (state["global_step"], state["stage"], state["wall"]), state.get("parent")
+        progress = (state["global_step"], state["stage"], state["wall"], list(state.get("curve", [])))
+        parent, target_state = state.get("parent"), state.get("target")
     elif warm is not None:  # transfer (§7.4.2.2): the mean weights, fresh noise
         fresh = q.state_dict()
         q.load_state_dict({k: hinted(v, fresh[k]) for k, v in policy_from(warm, args.init_from).state_dict().items()}
                           | {k: v for k, v in fresh.items() if "sigma" in k or "eps" in k})
         parent = lineage(args.init_from)
-    target.load_state_dict(q.state_dict())
+    try:
+        target.load_state_dict(target_state or q.state_dict())
+    except UNREADABLE as e:
+        raise ValueError(f"{checkpoint}: its target network does not fit this run ({reason(e)})") from None
     if args.compile:
         q.compile()
         target.compile()
@@ -1099,15 +1133,17 @@ def hinted(weight: torch.Tensor, fresh: torch.Tensor) -> torch.Tensor:
     return torch.cat([weight, torch.zeros(weight.shape[0], HINTS, dtype=weight.dtype)], 1)
 
 
-def save_run(run_dir: str, q: QNetwork, optimizer: torch.optim.Optimizer, args: Args, rng: np.random.Generator,
-             global_step: int, stage_index: int, stage_name: str, wall: float, parent: dict | None,
-             machine: dict) -> None:
-    """The checkpoint (runs/RUN/checkpoint.pt) and the export with its JSON: flags, network, steps, the
-    provenance of this code and machine, and the parent model's lineage."""
+def save_run(run_dir: str, q: QNetwork, target: QNetwork, optimizer: torch.optim.Optimizer, args: Args,
+             rng: np.random.Generator, global_step: int, stage_index: int, stage_name: str, wall: float,
+             parent: dict | None, machine: dict, curve: list | None = None) -> None:
+    """The checkpoint (runs/RUN/checkpoint.pt: the whole training state but the replay memory, with the learning
+    curve so far) and the export with its JSON: flags, network, steps, the provenance of this code and machine,
+    and the parent model's lineage."""
     save_checkpoint(os.path.join(run_dir, "checkpoint.pt"), {
         "model": q.state_dict(), "optimizer": optimizer.state_dict(), "global_step": global_step,
         "stage": stage_index, "wall": wall, "args": asdict(args), "script": SCRIPT, "numpy_rng": rng.bit_generator.state,
-        "torch_rng": torch.get_rng_state(), "parent": parent, **q.network()})
+        "torch_rng": torch.get_rng_state(), "parent": parent, "target": target.state_dict(), "curve": curve or [],
+        **q.network()})
     threads = torch.get_num_threads()
     export(q, args, {
         "global_step": global_step, "stage": stage_name, "wall_seconds": round(wall),
@@ -1116,6 +1152,20 @@ def save_run(run_dir: str, q: QNetwork, optimizer: torch.optim.Optimizer, args: 
                        "wall_seconds": round(wall, 1),
                        "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")},
         "parent": parent})
+
+
+def stop_signals() -> tuple[dict, dict]:
+    """Ctrl-C (SIGINT) and SIGTERM (`timeout`, a scheduler, a machine going away) ask the run to stop: the loop
+    ends, the run saves its checkpoint and exits 128 + the signal's number. Returns the flag the loop reads
+    ({"signal": 0} until then) and the handlers to put back."""
+    stop = {"signal": 0}
+    previous = {s: signal.signal(s, lambda n, _: stop.update(signal=n)) for s in (signal.SIGINT, signal.SIGTERM)}
+    return stop, previous
+
+
+def peak_memory_mb() -> int:
+    """The most resident memory this process has held so far, in MiB (Linux reports KiB)."""
+    return round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)
 
 
 def progress_bar(total: int, initial: int, quiet: bool) -> tqdm:
@@ -1292,6 +1342,38 @@ def stage_config(stage: gridworld.EnvConfig, args: Args) -> gridworld.EnvConfig:
     return stage
 
 
+CURVE_SLICES = {"cpp_eval": 5, "structured_eval": 14}  # --curve-every's held-out maps: every 5th, every 14th
+
+
+def curve_maps() -> dict[str, list[gridworld.Scenario]]:
+    """The learning curve's fixed held-out maps (CURVE_SLICES), each with its first start (one agent)."""
+    return {name: [gridworld.Scenario(s.obstacles, s.starts[:1], s.covered)
+                   for s in gridworld.load_dataset(os.path.join(HERE, "maps", f"{name}.npz"))[::every]]
+            for name, every in CURVE_SLICES.items()}
+
+
+def curve_point(q: QNetwork, maps: dict[str, list[gridworld.Scenario]], args: Args) -> dict:
+    """The greedy policy on each set of curve_maps, with the fallback (`name`) and without it (`name`_alone): mean
+    overlap, completion, the dissertation's outliers (overlap > 0.5 or truncated, §6.5.2) and, with the fallback, its
+    share of the steps; for cpp_eval also the mean overlap by size. The fallback breaks ties deterministically."""
+    point = {}
+    for name, scenarios in maps.items():
+        for fallback in (True, False):
+            m = evaluate_policy(q, scenarios, args.frame_stack, heuristic=fallback,
+                                dead_ends_first=args.heuristic_dead_ends)
+            row = {"maps": len(scenarios), "overlap": round(float(m["overlap"].mean()), 4),
+                   "completion": round(float(m["completed"].mean()), 4),
+                   "outliers": int(((m["overlap"] > 0.5) | m["truncated"]).sum())}
+            if fallback:
+                row["fallback_share"] = round(float(m["heuristic_steps"].sum() / max(m["steps"].sum(), 1)), 4)
+            if name == "cpp_eval":
+                sizes = np.array([s.obstacles.shape[0] for s in scenarios])
+                row["overlap_by_size"] = {int(z): round(float(m["overlap"][sizes == z].mean()), 4)
+                                          for z in np.unique(sizes)}
+            point[name if fallback else f"{name}_alone"] = row
+    return point
+
+
 def evaluate_policy(q: QNetwork, scenarios: list, frames: int, sensor: str = "full", sensor_range: int = 3,
                     sensor_failure: float = 0.0, heuristic: bool = True, random_ties: bool = False,
                     dead_ends_first: bool = True, trajectories: list | None = None, seed: int = 0,
@@ -1363,11 +1445,14 @@ def main(args: Args) -> None:
     # TRY NOT TO MODIFY: flags, files read and seeding; nothing is written before all of them check out
     check_flags(args)
     check_teacher(args)
+    if args.curve_every < 0:
+        raise ValueError(f"--curve-every must be >= 0, got {args.curve_every}")
     stages = load_stages(args)
     if args.buffer_size < 64 * args.num_envs:
         raise ValueError(f"--buffer-size {args.buffer_size}: need buffer_size >= 64 * num_envs")
     eval_set = gridworld.load_dataset(os.path.join(HERE, "maps", "cpp_eval.npz"))
-    args, run_dir, q, target, optimizer, rng, (global_step, stage_index, wall), parent = start_run(args, len(stages))
+    held_out = curve_maps() if args.curve_every else {}
+    args, run_dir, q, target, optimizer, rng, (global_step, stage_index, wall, curve), parent = start_run(args, len(stages))
     stages, device = observed(stages, args), device_of(q)  # the stages observed as the network needs
     observation = observation_settings(asdict(args))
     channels, view = frame_shape(observation)
@@ -1404,20 +1489,21 @@ def main(args: Args) -> None:
     challenging: list = []
     yardstick: dict = {}  # stage index -> the heuristic alone on that stage's evaluation maps
     updates_due, last_log, last_loss_log, t0 = 0.0, global_step, global_step, time.time() - wall
+    replay_born = global_step  # a new (or resumed) memory refills for learning_starts steps before learning
+    curve_clock = (global_step, time.time())  # steps/s between curve points leaves out their evaluation
     n_labels, label_time = 0, 0.0  # --teacher rollout: its labels and the seconds they took
     policy = build_network(q.network(), args.sigma0).to(device) if args.teacher == "policy-rollout" else None
     refreshed = global_step - args.policy_refresh  # --teacher policy-rollout: the greedy network's copy, made at once
     departures = np.zeros(3, np.int64)  # of the rollout's labels: departures from the heuristic, the network's agreeing
     latest = ""
-    stop = {"now": False}
-    previous_handler = signal.signal(signal.SIGINT, lambda *_: stop.update(now=True))  # Ctrl-C: save, exit
+    stop, previous_handlers = stop_signals()
     bar = progress_bar(total, global_step, args.quiet)
 
     def save():
-        save_run(run_dir, q, optimizer, args, rng, global_step, stage_index, stages[stage_index].name,
-                 time.time() - t0, parent, machine)
+        save_run(run_dir, q, target, optimizer, args, rng, global_step, stage_index, stages[stage_index].name,
+                 time.time() - t0, parent, machine, curve)
 
-    while global_step < total and not stop["now"] and not (args.time_limit and time.time() - t0 >= 60 * args.time_limit):
+    while global_step < total and not stop["signal"] and not (args.time_limit and time.time() - t0 >= 60 * args.time_limit):
         if global_step >= ends[stage_index]:  # the next curriculum stage, at each world's next reset
             stage_index += 1
             core.configure(stage_config(stages[stage_index], args))
@@ -1496,17 +1582,20 @@ def main(args: Args) -> None:
         stack.push(obs, ended)
 
         # ALGO LOGIC: training.
-        if global_step > args.learning_starts:
+        if global_step - replay_born > args.learning_starts:
             updates_due += B * args.replay_ratio / args.batch_size
         while updates_due >= 1:
             updates_due -= 1
             beta = args.beta_start + (1 - args.beta_start) * min(1.0, global_step / total)
-            td_loss, q_values, margin_loss = learn(q, target, optimizer, replay, args, beta, rng,
-                                                   margin_weight(args, global_step))
-            if global_step - last_loss_log >= 1000:  # the first update after each 1000 steps
+            diagnose = global_step - last_loss_log >= 1000  # the first update after each 1000 steps
+            td_loss, q_values, margin_loss, diagnostics = learn(q, target, optimizer, replay, args, beta, rng,
+                                                                margin_weight(args, global_step), diagnose)
+            if diagnose:
                 last_loss_log = global_step
                 writer.add_scalar("losses/td_loss", td_loss.item(), global_step)
                 writer.add_scalar("losses/q_values", q_values.item(), global_step)
+                for k, v in diagnostics.items():
+                    writer.add_scalar(f"diagnostics/{k}", v, global_step)
                 if margin_loss is not None:
                     writer.add_scalar("losses/margin_loss", margin_loss.item(), global_step)
         if global_step - last_log >= 1000:
@@ -1551,14 +1640,34 @@ def main(args: Args) -> None:
             if paths:
                 write_episode_video(pool[0], paths[0], os.path.join(run_dir, "videos", f"step_{global_step}.mp4"),
                                     stage.sensor, stage.sensor_range)
+        if args.curve_every and global_step % args.curve_every < B:
+            tick = time.time()
+            point = {"step": global_step, "stage": stages[stage_index].name, "wall_seconds": round(tick - t0),
+                     "sps": round((global_step - curve_clock[0]) / max(tick - curve_clock[1], 1e-9)),
+                     "peak_rss_mb": peak_memory_mb()}
+            point |= curve_point(q, held_out, args)
+            curve.append(point | {"eval_seconds": round(time.time() - tick)})
+            write_json(os.path.join(run_dir, "curve.json"), {"args": asdict(args), "curve": curve})
+            for k in ("cpp_eval", "structured_eval"):
+                writer.add_scalar(f"curve/{k}_overlap", point[k]["overlap"], global_step)
+                writer.add_scalar(f"curve/{k}_alone_completion", point[f"{k}_alone"]["completion"], global_step)
+            bar.write(f"step {global_step:,}  curve: overlap cpp_eval {point['cpp_eval']['overlap']:.3f}, structured "
+                      f"{point['structured_eval']['overlap']:.3f}; without the fallback completed "
+                      f"{100 * point['cpp_eval_alone']['completion']:.1f}% / "
+                      f"{100 * point['structured_eval_alone']['completion']:.1f}%, {point['sps']} steps/s")
+            curve_clock = (global_step, time.time())
+            save()  # the point is kept with the checkpoint
         # TRY NOT TO MODIFY: checkpoint and export
         if args.save_every and global_step % args.save_every < B:
             save()
     save()
     bar.close()
     writer.close()
-    signal.signal(signal.SIGINT, previous_handler)
+    for signum, handler in previous_handlers.items():
+        signal.signal(signum, handler)
     print(f"saved {os.path.join(run_dir, 'checkpoint.pt')} and {args.export} at step {global_step:,}")
+    if stop["signal"]:  # interrupted: the shell's convention, 130 for Ctrl-C and 143 for SIGTERM
+        raise SystemExit(128 + stop["signal"])
     if args.teacher != "heuristic":
         print(f"{args.teacher} teacher: {n_labels:,} labels in {label_time:.1f} s, {n_labels / max(label_time, 1e-9):.0f} "
               "labels/s")

@@ -35,6 +35,7 @@ import os
 import pickle
 import platform
 import random
+import resource
 import signal
 import subprocess
 import sys
@@ -693,13 +694,14 @@ def labelled(args: Args) -> bool:
 
 
 def learn(q: QNetwork, target: QNetwork, optimizer: torch.optim.Optimizer, replay: Replay, args: Args,
-          beta: float, rng: np.random.Generator,
-          margin_loss_weight: float | None = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
+          beta: float, rng: np.random.Generator, margin_loss_weight: float | None = None,
+          diagnose: bool = False) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None, dict | None]:
     """One gradient step on a prioritized batch, on the networks' device (the batch handed over in one copy):
     the double-DQN TD loss (plus the margin loss at `margin_loss_weight`, default --margin-loss; with a hint its
     departures, labels other than the heuristic's move, weigh --departure-weight), new priorities, the soft
     target update (eq. 6.19) and fresh noise; with --amp the forward passes run under bf16 autocast, the losses
-    in float32. Returns the TD loss, the mean Q(s, a) and the margin loss (None without labels), detached."""
+    in float32. Returns the TD loss, the mean Q(s, a) and the margin loss (None without labels), detached, and with
+    `diagnose` the update's diagnostics (None without)."""
     device = device_of(q)
     idx, (m_, e_, nm, ne, a_, ret, boot, weight, *label) = replay.batch(args.batch_size, beta, rng, device,
                                                                         labels=labelled(args))
@@ -717,15 +719,38 @@ def learn(q: QNetwork, target: QNetwork, optimizer: torch.optim.Optimizer, repla
         loss = loss + (args.margin_loss if margin_loss_weight is None else margin_loss_weight) * margin_loss
     optimizer.zero_grad()
     loss.backward()
-    nn.utils.clip_grad_norm_(q.parameters(), args.max_grad_norm)
+    grad_norm = nn.utils.clip_grad_norm_(q.parameters(), args.max_grad_norm)
     optimizer.step()
     replay.update_priorities(idx, (y - q_sa).detach().cpu().numpy())
+    diagnostics = diagnostics_of(q, m_, e_, q_all.detach(), (y - q_sa).detach(), weight, grad_norm) if diagnose else None
     with torch.no_grad():  # eq. 6.19
         for p, tp in zip(q.parameters(), target.parameters()):
             tp.lerp_(p, args.tau)
     q.reset_noise()
     target.reset_noise()
-    return td_loss.detach(), q_sa.detach().mean(), None if margin_loss is None else margin_loss.detach()
+    return td_loss.detach(), q_sa.detach().mean(), None if margin_loss is None else margin_loss.detach(), diagnostics
+
+
+def diagnostics_of(q: nn.Module, maps: torch.Tensor, extras: torch.Tensor, q_all: torch.Tensor, td_error: torch.Tensor,
+                   weight: torch.Tensor, grad_norm: torch.Tensor) -> dict[str, float]:
+    """What a DQN practitioner watches, from one update's batch (logged as diagnostics/*): the spread of Q over the
+    moves (the advantage stream's range) and the gap between the two best, the mean |TD error|, the smallest
+    importance weight, the gradient norm before clipping, the mean noisy sigma, and the share of dead units (never
+    active on the batch) in the first layer of each dueling stream: a stalled learner shows here first."""
+    first = {"value": [], "advantage": []}
+    hooks = [getattr(q, k)[0].register_forward_hook(lambda _, __, out, seen=seen: seen.append(out))
+             for k, seen in first.items()]
+    with torch.no_grad():
+        q(maps, extras)
+    for hook in hooks:
+        hook.remove()
+    best_two = q_all.topk(2, 1).values
+    sigma = torch.stack([m.weight_sigma.abs().mean() for m in q.modules() if isinstance(m, NoisyLinear)])
+    return {"q_spread": (q_all.max(1).values - q_all.min(1).values).mean().item(),
+            "action_gap": (best_two[:, 0] - best_two[:, 1]).mean().item(), "td_error": td_error.abs().mean().item(),
+            "importance_weight_min": weight.min().item(), "grad_norm": float(grad_norm),
+            "noisy_sigma": sigma.mean().item(),
+            **{f"dead_units_{k}": (seen[0] <= 0).all(0).float().mean().item() for k, seen in first.items()}}
 
 
 # ----------------------------------------------------------------------------- evaluation
@@ -1036,7 +1061,8 @@ def start_run(args: Args, n_stages: int) -> tuple:
     observation come from that file (a flag contradicting it is an error), else from the flags, else the
     defaults (with_network). Only reads: every bad file or flag is a ValueError before anything is written.
     Returns (args with every default filled in, run folder, online and target networks, optimizer, numpy
-    generator, (global_step, stage index, wall seconds), the parent's lineage)."""
+    generator, (global_step, stage index, wall seconds, the learning curve so far), the parent's lineage).
+    A resumed run gets its target network back too (a checkpoint without one: a copy of the online network)."""
     rng = seed_everything(args.seed, args.threads, args.torch_deterministic)
     run_name = run_name_of(args)
     run_dir = os.path.join("runs", run_name)
@@ -1055,7 +1081,7 @@ def start_run(args: Args, n_stages: int) -> tuple:
     q, target = (build_network(spec, args.sigma0).to(device) for _ in range(2))
     optimizer = torch.optim.Adam(q.parameters(), lr=args.learning_rate, eps=args.adam_eps,
                                  fused=True)  # fused: ~7x faster than the per-tensor loop on CPU
-    progress, parent = (0, 0, 0.0), None
+    progress, parent, target_state = (0, 0, 0.0, []), None, None
     if state is not None:
         if not (isinstance(state["stage"], int) and 0 <= state["stage"] < n_stages):
             raise ValueError(f"{checkpoint}: stage {state['stage']} of a curriculum of {n_stages} stages")
@@ -1067,13 +1093,17 @@ def start_run(args: Args, n_stages: int) -> tuple:
         except UNREADABLE as e:
             raise ValueError(f"{checkpoint}: does not fit this run "
                              f"({reason(e)})") from None
-        progress, parent = (state["global_step"], state["stage"], state["wall"]), state.get("parent")
+        progress = (state["global_step"], state["stage"], state["wall"], list(state.get("curve", [])))
+        parent, target_state = state.get("parent"), state.get("target")
     elif warm is not None:  # transfer (§7.4.2.2): the mean weights, fresh noise
         fresh = q.state_dict()
         q.load_state_dict({k: hinted(v, fresh[k]) for k, v in policy_from(warm, args.init_from).state_dict().items()}
                           | {k: v for k, v in fresh.items() if "sigma" in k or "eps" in k})
         parent = lineage(args.init_from)
-    target.load_state_dict(q.state_dict())
+    try:
+        target.load_state_dict(target_state or q.state_dict())
+    except UNREADABLE as e:
+        raise ValueError(f"{checkpoint}: its target network does not fit this run ({reason(e)})") from None
     if args.compile:
         q.compile()
         target.compile()
@@ -1088,15 +1118,17 @@ def hinted(weight: torch.Tensor, fresh: torch.Tensor) -> torch.Tensor:
     return torch.cat([weight, torch.zeros(weight.shape[0], HINTS, dtype=weight.dtype)], 1)
 
 
-def save_run(run_dir: str, q: QNetwork, optimizer: torch.optim.Optimizer, args: Args, rng: np.random.Generator,
-             global_step: int, stage_index: int, stage_name: str, wall: float, parent: dict | None,
-             machine: dict) -> None:
-    """The checkpoint (runs/RUN/checkpoint.pt) and the export with its JSON: flags, network, steps, the
-    provenance of this code and machine, and the parent model's lineage."""
+def save_run(run_dir: str, q: QNetwork, target: QNetwork, optimizer: torch.optim.Optimizer, args: Args,
+             rng: np.random.Generator, global_step: int, stage_index: int, stage_name: str, wall: float,
+             parent: dict | None, machine: dict, curve: list | None = None) -> None:
+    """The checkpoint (runs/RUN/checkpoint.pt: the whole training state but the replay memory, with the learning
+    curve so far) and the export with its JSON: flags, network, steps, the provenance of this code and machine,
+    and the parent model's lineage."""
     save_checkpoint(os.path.join(run_dir, "checkpoint.pt"), {
         "model": q.state_dict(), "optimizer": optimizer.state_dict(), "global_step": global_step,
         "stage": stage_index, "wall": wall, "args": asdict(args), "script": SCRIPT, "numpy_rng": rng.bit_generator.state,
-        "torch_rng": torch.get_rng_state(), "parent": parent, **q.network()})
+        "torch_rng": torch.get_rng_state(), "parent": parent, "target": target.state_dict(), "curve": curve or [],
+        **q.network()})
     threads = torch.get_num_threads()
     export(q, args, {
         "global_step": global_step, "stage": stage_name, "wall_seconds": round(wall),
@@ -1105,6 +1137,20 @@ def save_run(run_dir: str, q: QNetwork, optimizer: torch.optim.Optimizer, args: 
                        "wall_seconds": round(wall, 1),
                        "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")},
         "parent": parent})
+
+
+def stop_signals() -> tuple[dict, dict]:
+    """Ctrl-C (SIGINT) and SIGTERM (`timeout`, a scheduler, a machine going away) ask the run to stop: the loop
+    ends, the run saves its checkpoint and exits 128 + the signal's number. Returns the flag the loop reads
+    ({"signal": 0} until then) and the handlers to put back."""
+    stop = {"signal": 0}
+    previous = {s: signal.signal(s, lambda n, _: stop.update(signal=n)) for s in (signal.SIGINT, signal.SIGTERM)}
+    return stop, previous
+
+
+def peak_memory_mb() -> int:
+    """The most resident memory this process has held so far, in MiB (Linux reports KiB)."""
+    return round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)
 
 
 def progress_bar(total: int, initial: int, quiet: bool) -> tqdm:
@@ -1260,7 +1306,7 @@ def main(args: Args) -> None:
                          "of a stage")
     eval_path = os.path.join(HERE, "maps", "marl_eval.npz")
     eval_set, eval_sizes = gridworld.load_dataset(eval_path), np.load(eval_path)["size"]
-    args, run_dir, q, target, optimizer, rng, (global_step, stage_index, wall), parent = start_run(args, len(stages))
+    args, run_dir, q, target, optimizer, rng, (global_step, stage_index, wall, _), parent = start_run(args, len(stages))
     stages, device = observed(stages, args), device_of(q)  # the stages observed as the network needs
     observation = observation_settings(asdict(args))
     channels, view = frame_shape(observation)
@@ -1277,16 +1323,15 @@ def main(args: Args) -> None:
     updates_due, last_log, last_loss_log, t0 = 0.0, global_step, global_step, time.time() - wall
     n_labels, label_time = 0, 0.0  # --teacher rollout: its labelled worlds and the seconds they took
     latest = ""
-    stop = {"now": False}
-    previous_handler = signal.signal(signal.SIGINT, lambda *_: stop.update(now=True))  # Ctrl-C: save, exit
+    stop, previous_handlers = stop_signals()
     bar = progress_bar(total, global_step, args.quiet)
 
     def save():
-        save_run(run_dir, q, optimizer, args, rng, global_step, stage_index, stages[stage_index].name,
+        save_run(run_dir, q, target, optimizer, args, rng, global_step, stage_index, stages[stage_index].name,
                  time.time() - t0, parent, machine)
 
     # TRY NOT TO MODIFY: start the game
-    while global_step < total and not stop["now"] and not (args.time_limit and time.time() - t0 >= 60 * args.time_limit):
+    while global_step < total and not stop["signal"] and not (args.time_limit and time.time() - t0 >= 60 * args.time_limit):
         if core is not None and global_step >= ends[stage_index]:  # the next curriculum stage
             stage_index += 1
             if stages[stage_index].number_agents == core.N:  # picked up at each world's next reset
@@ -1404,12 +1449,15 @@ def main(args: Args) -> None:
         while updates_due >= 1:
             updates_due -= 1
             beta = args.beta_start + (1 - args.beta_start) * min(1.0, global_step / total)
-            td_loss, q_values, margin_loss = learn(q, target, optimizer, replay, args, beta, rng,
-                                                   margin_weight(args, global_step))
-            if global_step - last_loss_log >= 1000:  # the first update after each 1000 steps
+            diagnose = global_step - last_loss_log >= 1000  # the first update after each 1000 steps
+            td_loss, q_values, margin_loss, diagnostics = learn(q, target, optimizer, replay, args, beta, rng,
+                                                                margin_weight(args, global_step), diagnose)
+            if diagnose:
                 last_loss_log = global_step
                 writer.add_scalar("losses/td_loss", td_loss.item(), global_step)
                 writer.add_scalar("losses/q_values", q_values.item(), global_step)
+                for k, v in diagnostics.items():
+                    writer.add_scalar(f"diagnostics/{k}", v, global_step)
                 if margin_loss is not None:
                     writer.add_scalar("losses/margin_loss", margin_loss.item(), global_step)
         if global_step - last_log >= 1000:
@@ -1452,8 +1500,11 @@ def main(args: Args) -> None:
     save()
     bar.close()
     writer.close()
-    signal.signal(signal.SIGINT, previous_handler)
+    for signum, handler in previous_handlers.items():
+        signal.signal(signum, handler)
     print(f"saved {os.path.join(run_dir, 'checkpoint.pt')} and {args.export} at step {global_step:,}")
+    if stop["signal"]:  # interrupted: the shell's convention, 130 for Ctrl-C and 143 for SIGTERM
+        raise SystemExit(128 + stop["signal"])
     if args.teacher == "rollout":
         print(f"rollout teacher: {n_labels:,} labelled worlds in {label_time:.1f} s, "
               f"{n_labels / max(label_time, 1e-9):.1f} a second")

@@ -32,10 +32,12 @@ def heuristic_ties(monkeypatch) -> list:
 
 @pytest.fixture
 def restore_sigint():
-    """The trainers catch Ctrl-C while they run; a test that fails inside one leaves the handler as it was."""
-    old = signal.getsignal(signal.SIGINT)
+    """The trainers catch Ctrl-C and SIGTERM while they run; a test that fails inside one leaves the handlers as they
+    were."""
+    old = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
     yield
-    signal.signal(signal.SIGINT, old)
+    for s, handler in old.items():
+        signal.signal(s, handler)
 
 
 @pytest.fixture

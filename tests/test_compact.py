@@ -409,7 +409,7 @@ def test_amp_learns_under_bf16_autocast_on_the_cpu():
     optimizer = torch.optim.Adam(q.parameters(), lr=1e-3)
     seen = []
     hook = q.value[0].register_forward_hook(lambda m, i, o: seen.append(o.dtype))
-    td, q_values, _ = rc.learn(q, target, optimizer, filled_replay(), args, 0.4, np.random.default_rng(0))
+    td, q_values, _, _ = rc.learn(q, target, optimizer, filled_replay(), args, 0.4, np.random.default_rng(0))
     hook.remove()
     assert torch.bfloat16 in seen and td.dtype == torch.float32 and torch.isfinite(td) and torch.isfinite(q_values)
 

@@ -40,11 +40,11 @@ SHARED = [
     "OUT_OF_BOUNDS_SCALE", "MOVES", "DISSERTATION", "NETWORKS", "SCALE_KEYS", "HINTS", "COMPACT", "CHECKPOINT_KEYS",
     "UNREADABLE", "NoisyLinear", "QNetwork", "CompactQNetwork", "dueling", "build_network", "observation_settings",
     "frame_shape", "device_of", "autocast", "SumTree", "Replay", "hand_over", "Stacker", "observe", "to_torch",
-    "stuck", "large_margin_loss", "margin_weight", "labelled", "learn", "eval_config", "heuristic_baseline",
+    "stuck", "large_margin_loss", "margin_weight", "labelled", "learn", "diagnostics_of", "eval_config", "heuristic_baseline",
     "world_paths", "write_episode_video",
     "save_checkpoint", "write_json", "export", "read_model", "network_of", "policy_from", "load_policy",
     "load_checkpoint", "check_flags", "run_name_of", "with_network", "observed", "lineage", "host", "seed_everything",
-    "start_run", "hinted", "save_run", "progress_bar", "reason",
+    "start_run", "hinted", "save_run", "stop_signals", "peak_memory_mb", "progress_bar", "reason",
 ]
 # the Args fields that the shared code reads, equal in both (flag, default and docstring)
 SHARED_FLAGS = ["exp_name", "seed", "run_name", "threads", "cuda", "torch_deterministic", "compile", "amp", "quiet",
