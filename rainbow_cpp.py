@@ -374,7 +374,9 @@ class CompactQNetwork(nn.Module):
 
     def forward(self, maps, extras):
         n, v = maps.shape[0], maps.shape[-1]
-        x = maps.reshape(n, self.frames, self.scales, self.per_scale, v, v).transpose(1, 2).reshape(n, -1, v, v)
+        # scale-major channels, laid out channels-last: oneDNN's grouped convolutions run ~1.7x faster on it on the CPU
+        x = maps.reshape(n, self.frames, self.scales, self.per_scale, v, v).permute(0, 4, 5, 2, 1, 3)
+        x = x.reshape(n, v, v, -1).permute(0, 3, 1, 2)
         return dueling(torch.cat([self.conv(x.float() / 255), extras], 1), self.value, self.advantage)
 
 
@@ -738,9 +740,8 @@ def learn(q: QNetwork, target: QNetwork, optimizer: torch.optim.Optimizer, repla
     optimizer.step()
     replay.update_priorities(idx, (y - q_sa).detach().cpu().numpy())
     diagnostics = diagnostics_of(q, m_, e_, q_all.detach(), (y - q_sa).detach(), weight, grad_norm) if diagnose else None
-    with torch.no_grad():  # eq. 6.19
-        for p, tp in zip(q.parameters(), target.parameters()):
-            tp.lerp_(p, args.tau)
+    with torch.no_grad():  # eq. 6.19, one call for every tensor
+        torch._foreach_lerp_(list(target.parameters()), list(q.parameters()), args.tau)
     q.reset_noise()
     target.reset_noise()
     return td_loss.detach(), q_sa.detach().mean(), None if margin_loss is None else margin_loss.detach(), diagnostics
@@ -1368,7 +1369,7 @@ def curve_point(q: QNetwork, maps: dict[str, list[gridworld.Scenario]], args: Ar
                 row["fallback_share"] = round(float(m["heuristic_steps"].sum() / max(m["steps"].sum(), 1)), 4)
             if name == "cpp_eval":
                 sizes = np.array([s.obstacles.shape[0] for s in scenarios])
-                row["overlap_by_size"] = {int(z): round(float(m["overlap"][sizes == z].mean()), 4)
+                row["overlap_by_size"] = {str(z): round(float(m["overlap"][sizes == z].mean()), 4)
                                           for z in np.unique(sizes)}
             point[name if fallback else f"{name}_alone"] = row
     return point

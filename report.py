@@ -53,13 +53,16 @@ RESULTS = os.path.join(ROOT, "results")
 PARTS = {"classical": "classical_cpp.json", "structured": "planners_structured.json", "rollout": "rollout.json",
          "team_rollout": "team_rollout.json", "sensors": "rainbow_sensors.json",
          "rainbow_cpp": "rainbow_cpp.json", "rainbow_marl": "rainbow_marl.json",
-         "tabular": os.path.join("tabular", "fig5_5.json")}
+         "tabular": os.path.join("tabular", "fig5_5.json"),
+         "scale_references": "rainbow_cpp_scale_references.json", "rainbow_cpp_scale": "rainbow_cpp_scale.json"}
 IN_CLASSICAL = {"structured": "structured_eval", "rollout": "rollout"}  # parts classical_cpp.compare also holds
 MODELS = {"rainbow_cpp": evaluate.DEFAULT_CHECKPOINT["rainbow"], "sensors": evaluate.DEFAULT_CHECKPOINT["rainbow"],
           "rainbow_marl": evaluate.DEFAULT_CHECKPOINT["marl"],
-          "tabular": evaluate.DEFAULT_CHECKPOINT["tabular"]}
+          "tabular": evaluate.DEFAULT_CHECKPOINT["tabular"], "scale_references": evaluate.DEFAULT_CHECKPOINT["rainbow"],
+          "rainbow_cpp_scale": "models/rainbow_cpp_dissertation_run.pt"}  # the scale run's committed training state
 SCRIPTS = {"rainbow_cpp": "rainbow_cpp.py", "sensors": "rainbow_cpp.py", "rainbow_marl": "rainbow_marl.py",
-           "tabular": "tabular_q.py"}
+           "tabular": "tabular_q.py", "scale_references": "rainbow_cpp.py", "rainbow_cpp_scale": "rainbow_cpp.py"}
+SCALE_REFERENCES = ("greedy", "greedy-far-first", "lkh")  # planners drawn beside the scale run's curve (and the model)
 ALGORITHM_NAMES = {"q-learning": "Q-learning", "sarsa": "SARSA", "double-q": "Double Q-learning",
                    "watkins": "Watkins's Q(λ)"}  # tabular_q.py --algorithm, as the figure's title names it
 CH5_EVAL = os.path.join("maps", "ch5_eval.npz")  # Fig. 5.5's maps, with their size and requested obstacles
@@ -77,7 +80,8 @@ T_975 = {1: 12.706, 2: 4.303, 3: 3.182, 4: 2.776, 5: 2.571, 6: 2.447, 7: 2.365, 
 FIGURES = {"planners_by_size": "planners_overlap_by_size.png", "planners_external": "planners_external.png",
            "planners_structured": "planners_structured.png", "marl_baselines": "marl_baselines.png",
            "rainbow_cpp": "rainbow_overlap_by_size.png", "sensors": "rainbow_sensors.png",
-           "rainbow_marl": "rainbow_marl_time_save.png", "fig5_4": "tabular_fig5_4.png", "fig5_5": "tabular_fig5_5.png"}
+           "rainbow_marl": "rainbow_marl_time_save.png", "fig5_4": "tabular_fig5_4.png", "fig5_5": "tabular_fig5_5.png",
+           "rainbow_cpp_scale": "rainbow_cpp_scale.png"}
 # The numbers the report holds the results against, each with its source; no other number in the text is typed.
 REFERENCE = {
     # Table 5.1: training time (s) of 100,000 episodes on 6x6, columns (heuristic, 0 obstacles), (heuristic, 1),
@@ -276,6 +280,45 @@ def rainbow_results(per_size: int, p2p_maps: int, model: str, quiet: bool = Fals
     return result
 
 
+def scale_references(model: str, quiet: bool = False) -> dict:
+    """The references of the scale run's learning curve on its own held-out maps (rainbow_cpp.curve_maps): the
+    dissertation's heuristic with deterministic ties (greedy), greedy-far-first, LKH and the shipped model with its
+    fallback; per set the mean overlap and completion, for cpp_eval also by size."""
+    import rainbow_cpp
+    result = {"model": _model_json(model), "slices": rainbow_cpp.CURVE_SLICES}
+    maps = rainbow_cpp.curve_maps()
+    with _bar(len(maps) * (len(SCALE_REFERENCES) + 1), "scale references", quiet) as bar:
+        for name, scenarios in maps.items():
+            episodes = [(f"{name}.npz[{i}]", classical_cpp.with_starts(s)) for i, s in enumerate(scenarios)]
+            sizes = [s.obstacles.shape[0] for s in scenarios]
+            result[name] = {}
+            for policy in (*SCALE_REFERENCES, "rainbow"):
+                rows = (evaluate.run_rainbow(evaluate.Args(policy="rainbow", checkpoint=model, quiet=quiet), episodes)
+                        if policy == "rainbow" else evaluate.run_planner(policy, episodes))
+                row = {"overlap": round(float(np.mean([r["overlap"] for r in rows])), 4),
+                       "completion": round(float(np.mean([r["completed"] for r in rows])), 4)}
+                if name == "cpp_eval":
+                    row["overlap_by_size"] = {str(z): round(float(np.mean([r["overlap"] for r, y in zip(rows, sizes)
+                                                                           if y == z])), 4) for z in sorted(set(sizes))}
+                result[name][policy] = row
+                bar.update()
+    return result
+
+
+def scale_curve(checkpoint: str) -> dict:
+    """The scale run's learning curve and flags, read from its training checkpoint (rainbow_cpp.py --curve-every keeps
+    the curve in it), with the checkpoint's steps, stage, wall time and hash."""
+    import hashlib
+
+    import rainbow_cpp
+    state = rainbow_cpp.load_checkpoint(checkpoint)
+    with open(checkpoint, "rb") as f:
+        digest = hashlib.sha256(f.read()).hexdigest()
+    return {"checkpoint": os.path.relpath(checkpoint, ROOT), "sha256": digest, "global_step": state["global_step"],
+            "stage": state["stage"], "wall_seconds": round(state["wall"]), "args": state["args"],
+            "curve": json.loads(json.dumps(state.get("curve", [])))}  # as JSON keeps it (its keys strings)
+
+
 def family_stats(rows: list[dict]) -> dict:
     """Mean overlap, completion and heuristic share of some episodes."""
     return dict(overlap=round(float(np.mean([r["overlap"] for r in rows])), 4),
@@ -444,6 +487,10 @@ def collect(args: Collect, staging: str) -> list[str]:
             result = rainbow_results(args.per_size, args.p2p_maps, model, args.quiet)
         elif part == "rainbow_marl":
             result = marl_results(model, args.quiet, MARL_EVERY, MARL_AGENTS, MARL_STRUCTURED_EVERY)
+        elif part == "scale_references":
+            result = scale_references(model, args.quiet)
+        elif part == "rainbow_cpp_scale":
+            result = scale_curve(model)
         else:
             result = tabular_results(model, args.quiet)
         result["provenance"] = provenance(started, args)
@@ -1033,6 +1080,40 @@ def headline(results: dict) -> list[str]:
     return lines
 
 
+def scale_lines(scale: dict | None, refs: dict | None) -> list[str]:
+    """The scale run (issue 43): its flags, then one row a point of its learning curve, then the references on the
+    same maps."""
+    if scale is None:
+        return [NOT_COLLECTED.format(file=PARTS["rainbow_cpp_scale"], part="rainbow_cpp_scale",
+                                     model=MODELS["rainbow_cpp_scale"], script="rainbow_cpp.py")]
+    a = scale["args"]
+    flags = (f"--network {a['network']} --learning-rate {a['learning_rate']:g} --stage-steps-scale "
+             f"{a['stage_steps_scale']:g}" + ("" if a["camera_stages"] else " --no-camera-stages")
+             + ("" if a["heuristic_dead_ends"] else " --no-heuristic-dead-ends")
+             + (" --heuristic-random-ties" if a["heuristic_random_ties"] else ""))
+    lines = [f"`rainbow_cpp.py {flags}` from scratch, Table 6.2's curriculum; the checkpoint `{scale['checkpoint']}` "
+             f"(sha256 {scale['sha256'][:12]}) stands at {scale['global_step']:,} steps, stage index {scale['stage']}, "
+             f"{scale['wall_seconds'] / 3600:.1f} h of training. Each point: the greedy policy on every 5th cpp_eval map "
+             "(520, sizes 5-30) and every 14th structured_eval map (120), with the fallback and without it "
+             "(alone: completion and outliers, overlap > 0.5 or truncated, §6.5.2).", ""]
+    if not scale["curve"]:
+        return lines + ["No point of the learning curve yet (the first comes at `--curve-every` steps)."]
+    rows = [[f"{p['step']:,}", p["stage"], f"{p['cpp_eval']['overlap']:.3f}", f"{100 * p['cpp_eval']['completion']:.1f}%",
+             f"{100 * p['cpp_eval_alone']['completion']:.1f}%", str(p["cpp_eval_alone"]["outliers"]),
+             f"{p['structured_eval']['overlap']:.3f}", f"{100 * p['structured_eval_alone']['completion']:.1f}%",
+             f"{p['cpp_eval']['fallback_share']:.3f}", str(p["sps"]), str(p["peak_rss_mb"])] for p in scale["curve"]]
+    lines.append(table(["steps", "stage", "cpp_eval overlap", "completion", "alone: completion", "alone: outliers",
+                        "structured overlap", "alone: completion", "fallback share", "steps/s", "peak MiB"], rows))
+    lines += ["", f"![the scale run's learning curve]({FIGURES['rainbow_cpp_scale']})"]
+    if refs is not None:
+        names = [*SCALE_REFERENCES, "rainbow"]
+        label = {"rainbow": "shipped rainbow_cpp (+ fallback)", "greedy": "greedy (the dissertation's heuristic)"}
+        lines += ["", table(["reference, same maps", "cpp_eval overlap", "structured overlap"],
+                            [[label.get(n, n), f"{refs['cpp_eval'][n]['overlap']:.3f}",
+                              f"{refs['structured_eval'][n]['overlap']:.3f}"] for n in names])]
+    return lines
+
+
 def render(results: dict) -> str:
     """RESULTS.md from `load_results`: a pure function of the JSON, the same files always give the same text."""
     paths = results["paths"]
@@ -1062,6 +1143,8 @@ def render(results: dict) -> str:
         team_rollout = team_rollout_lines(results["team_rollout"])
     with reading(paths["tabular"] or paths["fig5_4"] or "the tabular results"):
         tabular = tabular_lines(results["tabular"], results["fig5_4"])
+    with reading(paths["rainbow_cpp_scale"] or "the scale run's results"):
+        scale = scale_lines(results["rainbow_cpp_scale"], results["scale_references"])
     return "\n".join([
         "# Results", "",
         "Regenerated by `python report.py --overwrite` (`python report.py render` rewrites this file from the JSON beside it "
@@ -1070,6 +1153,7 @@ def render(results: dict) -> str:
         "## Headline", "", *headline(results), "",
         "## Provenance", "", *provenance_lines(results), "",
         "## Single agent, full information (Figs. 6.13-6.16)", "", *full_info, "",
+        "## The dissertation's recipe at scale (Table 6.2 from scratch)", "", *scale, "",
         "## Comparison with classical planners (Table 6.4)", "", *comparison, "",
         "## Structured maps (planners)", "", *structured, "",
         "## Sensor-based coverage (Figs. 6.17-6.22)", "", *sensor_based, "", *sensors, "",
@@ -1254,6 +1338,31 @@ def plot_sensors(sr: dict, folder: str) -> list[str]:
     return [_save(fig, folder, "sensors")]
 
 
+def plot_scale(scale: dict, refs: dict | None, folder: str) -> list[str]:
+    """The scale run's learning curve: mean overlap with the fallback on its two held-out sets against environment
+    steps, and completion without the fallback; the references on the same maps as horizontal lines."""
+    import matplotlib.pyplot as plt
+    if not scale["curve"]:
+        return []
+    steps = [p["step"] / 1e6 for p in scale["curve"]]
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
+    colours = {"greedy": "tab:red", "greedy-far-first": "tab:orange", "lkh": "tab:green", "rainbow": "tab:purple"}
+    label = {"rainbow": "shipped rainbow_cpp", "greedy": "greedy (dissertation's heuristic)"}
+    for ax, name in zip(axes, ("cpp_eval", "structured_eval")):
+        ax.plot(steps, [p[name]["overlap"] for p in scale["curve"]], "o-", color="black", label="scale run (+ fallback)")
+        for ref, row in ((refs or {}).get(name) or {}).items():
+            ax.axhline(row["overlap"], ls="--", color=colours.get(ref, "grey"), label=label.get(ref, ref))
+        ax.set(title=f"{name}: mean overlap with the fallback", xlabel="environment steps (M)", ylabel="mean overlap")
+        ax.legend(fontsize=8)
+    for name in ("cpp_eval", "structured_eval"):
+        axes[2].plot(steps, [100 * p[f"{name}_alone"]["completion"] for p in scale["curve"]], "o-", label=name)
+    axes[2].axhline(99.3, ls=":", color="grey", label="dissertation: 99.3%")
+    axes[2].set(title="completion without the fallback", xlabel="environment steps (M)", ylabel="% of maps",
+                ylim=(0, 101))
+    axes[2].legend(fontsize=8)
+    return [_save(fig, folder, "rainbow_cpp_scale")]
+
+
 def plot(results: dict, folder: str) -> list[str]:
     """Every figure the results allow, written into `folder`; the paths written."""
     import matplotlib
@@ -1276,6 +1385,9 @@ def plot(results: dict, folder: str) -> list[str]:
             written += plot_marl(results["rainbow_marl"], results["classical"], folder)
     with reading(paths["tabular"] or paths["fig5_4"] or "the tabular results"):
         written += plot_tabular(results["tabular"], results["fig5_4"], folder)
+    if results["rainbow_cpp_scale"] is not None:
+        with reading(paths["rainbow_cpp_scale"]):
+            written += plot_scale(results["rainbow_cpp_scale"], results["scale_references"], folder)
     return written
 
 
@@ -1290,7 +1402,9 @@ class Collect:
     on structured_eval alone), rollout (the rollout planner alone on classical's cpp_eval and MovingAI maps),
     team_rollout (the multiagent rollout planner on marl_eval at N = 2, 5, 10 and structured_eval at N = 5: ~45 min on
     one core), sensors (rainbow_cpp's model beside the frontier baselines under camera and LiDAR of range 1-5 and
-    sensor failures, Figs. 6.17-6.22), rainbow_cpp, rainbow_marl, tabular"""
+    sensor failures, Figs. 6.17-6.22), rainbow_cpp, rainbow_marl, tabular, scale_references (the planners and the
+    shipped model on the scale run's held-out maps: ~20 min on one core, most of it LKH), rainbow_cpp_scale (the scale
+    run's learning curve, read from its committed checkpoint: seconds)"""
     reuse: bool = False
     """collect only the parts whose JSON is missing under --out"""
     overwrite: bool = False

@@ -1,0 +1,92 @@
+"""The learning rate of the dissertation's recipe (issue 43): Table 6.2's stages 1-2 from scratch at several rates.
+
+    taskset -c 1 python benchmarks/learning_rate.py --out runs/learning_rate.json       # ~10 min a rate, one core
+    python report.py ... reads nothing from here; the docs quote the JSON this writes
+
+Each rate trains rainbow_cpp.py with the scale run's flags (the compact network on one thread, the dissertation's
+random-tie heuristic as teacher and fallback, every §6.4.2 feature, no margin loss) over stages fi1 and fi2 of Table
+6.2 at `--stage-steps-scale` (0.05: 50 k + 100 k steps), evaluating the greedy policy every `--eval-every` steps on
+held-out cpp_eval maps up to the stage's size beside the heuristic on the same maps (the trainer's eval/overlap,
+eval/heuristic_overlap, eval/completion and eval/heuristic_share), and records them with the last logged Q value.
+"""
+from __future__ import annotations
+
+import json
+import os
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field
+
+import torch
+import tyro
+from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+import rainbow_cpp as rc  # noqa: E402
+
+RECIPE = ["--network", "compact", "--no-cuda", "--threads", "1", "--no-heuristic-dead-ends", "--heuristic-random-ties",
+          "--no-camera-stages", "--save-every", "0", "--quiet"]
+TAGS = ("eval/overlap", "eval/heuristic_overlap", "eval/completion", "eval/heuristic_share")
+
+
+@dataclass
+class Args:
+    rates: list[float] = field(default_factory=lambda: [5e-5, 1.5e-4, 5e-4, 1.5e-3])
+    """Adam learning rates to train with (Table 6.1's is 5e-5)"""
+    stage_steps_scale: float = 0.05
+    """Table 6.2's steps times this (0.05: fi1 50 k, fi2 100 k)"""
+    eval_every: int = 25_000
+    """environment steps between evaluations"""
+    eval_maps: int = 64
+    """held-out maps an evaluation"""
+    seed: int = 1
+    """the trainer's seed"""
+    out: str = "runs/learning_rate.json"
+    """where the results go (refused if the file exists: choose another path)"""
+
+
+def scalars(run_dir: str, tag: str) -> list[tuple[int, float]]:
+    acc = EventAccumulator(run_dir, size_guidance={"scalars": 0})
+    acc.Reload()
+    return [(e.step, round(e.value, 4)) for e in acc.Scalars(tag)] if tag in acc.Tags()["scalars"] else []
+
+
+def main(a: Args) -> None:
+    if os.path.exists(a.out):
+        raise ValueError(f"--out {a.out} exists: choose another path")
+    if not a.rates or any(not 0 < r < 1 for r in a.rates) or not 0 < a.stage_steps_scale <= 1 or a.eval_every < 16:
+        raise ValueError("--rates in (0, 1), --stage-steps-scale in (0, 1] and --eval-every >= 16")
+    total = int(1_000_000 * a.stage_steps_scale) + int(2_000_000 * a.stage_steps_scale)
+    results = {"flags": RECIPE, "stage_steps_scale": a.stage_steps_scale, "total_steps": total, "seed": a.seed,
+               "torch": torch.__version__, "rates": {}}
+    here = os.getcwd()
+    with tempfile.TemporaryDirectory() as workdir:
+        os.chdir(workdir)
+        try:
+            for rate in a.rates:
+                name = f"lr{rate:g}"
+                args = tyro.cli(rc.Args, args=[*RECIPE, "--learning-rate", str(rate), "--stage-steps-scale",
+                                               str(a.stage_steps_scale), "--total-steps", str(total), "--eval-every",
+                                               str(a.eval_every), "--eval-maps", str(a.eval_maps), "--seed",
+                                               str(a.seed), "--run-name", name])
+                start = time.time()
+                rc.main(args)
+                run_dir = os.path.join("runs", name)
+                results["rates"][f"{rate:g}"] = {
+                    **{tag.split("/")[1]: scalars(run_dir, tag) for tag in TAGS},
+                    "q_values": scalars(run_dir, "losses/q_values")[-1:], "wall_seconds": round(time.time() - start)}
+                print(f"learning rate {rate:g}: eval overlap {results['rates'][f'{rate:g}']['overlap']}", flush=True)
+        finally:
+            os.chdir(here)
+    os.makedirs(os.path.dirname(os.path.abspath(a.out)), exist_ok=True)
+    with open(a.out, "w") as f:
+        json.dump(results, f, indent=1)
+    print(f"wrote {a.out}")
+
+
+if __name__ == "__main__":
+    try:
+        main(tyro.cli(Args))
+    except ValueError as e:
+        raise SystemExit(f"error: {e}") from None

@@ -1,0 +1,194 @@
+"""The dissertation's recipe at scale (issue 43): what the long run needs from the trainers, and its committed state.
+
+- --curve-every appends a learning-curve point (greedy policy with and without the fallback on fixed held-out maps,
+  steps/s, peak memory) to runs/RUN/curve.json and to the checkpoint; a resumed run goes on with the same curve.
+- A resumed run refills its empty replay memory for learning_starts steps before it learns, and gets its target
+  network back from the checkpoint.
+- SIGTERM and Ctrl-C save a checkpoint and exit 128 + the signal's number.
+- diagnostics_of reports hand-computable figures (Q spread, action gap, |TD error|, dead units).
+- The compact network's channels-last forward is the grouped convolution of the scale-major channels.
+- The scale run's committed checkpoint (models/rainbow_cpp_dissertation_run.pt) loads and resumes with the command
+  docs/rainbow_cpp.md gives: a refactor never breaks the long run.
+"""
+from __future__ import annotations
+
+import json
+import os
+import shlex
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+import torch.nn as nn
+import tyro
+
+import gridworld as gw
+import rainbow_cpp as rc
+import rainbow_marl as rm
+
+ROOT = Path(__file__).resolve().parent.parent
+SCALE_CHECKPOINT = ROOT / "models" / "rainbow_cpp_dissertation_run.pt"
+
+
+def tiny(t, **kw):
+    base = dict(run_name="t", total_steps=64, num_envs=2, learning_starts=32, buffer_size=2000, hidden=16,
+                eval_every=0, save_every=0, quiet=True, cuda=False, network="compact", conv_width=8)
+    if t is rm:
+        base["init_from"] = ""
+    return t.Args(**{**base, **kw})
+
+
+def small_curve_maps():
+    """Three 5x5 held-out maps a set, so that a curve point takes a moment."""
+    maps = {name: [gw.Scenario(s.obstacles, s.starts[:1], s.covered) for s in gw.load_dataset(
+        ROOT / "maps" / f"{name}.npz")[:3]] for name in rc.CURVE_SLICES}
+    return maps
+
+
+def test_curve_points_go_to_the_json_and_the_checkpoint_and_survive_a_resume(tmp_path, monkeypatch, restore_sigint):
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(rc, "curve_maps", small_curve_maps)
+    rc.main(tiny(rc, total_steps=64, curve_every=32))
+    curve = json.loads((tmp_path / "runs" / "t" / "curve.json").read_text())["curve"]
+    assert [p["step"] for p in curve] == [32, 64]
+    point = curve[-1]
+    for name in ("cpp_eval", "structured_eval"):
+        assert point[name]["maps"] == 3 and point[name]["completion"] == 1.0  # the fallback always finishes
+        assert 0 <= point[name]["fallback_share"] <= 1
+        assert {"maps", "overlap", "completion", "outliers"} <= set(point[f"{name}_alone"])
+        assert 0 <= point[f"{name}_alone"]["outliers"] <= 3
+    assert set(point["cpp_eval"]["overlap_by_size"]) == set(point["cpp_eval_alone"]["overlap_by_size"]) == {"5"}
+    assert point["sps"] > 0 and point["peak_rss_mb"] > 50
+    state = torch.load(tmp_path / "runs" / "t" / "checkpoint.pt", weights_only=True)
+    assert state["curve"] == curve and set(state["target"]) == set(state["model"])
+
+    rc.main(tiny(rc, total_steps=96, curve_every=32, resume=True))
+    resumed = json.loads((tmp_path / "runs" / "t" / "curve.json").read_text())["curve"]
+    assert [p["step"] for p in resumed] == [32, 64, 96] and resumed[:2] == curve
+
+
+def test_a_resumed_run_refills_its_memory_before_learning_and_keeps_its_target(tmp_path, monkeypatch,
+                                                                               restore_sigint):
+    monkeypatch.chdir(tmp_path)
+    rc.main(tiny(rc, total_steps=64, learning_starts=32))
+    state = torch.load(tmp_path / "runs" / "t" / "checkpoint.pt", weights_only=True)
+    assert any(not torch.equal(state["target"][k], state["model"][k]) for k in state["model"])  # soft updates lag
+    calls, learn = [], rc.learn
+    monkeypatch.setattr(rc, "learn", lambda *a, **k: calls.append(1) or learn(*a, **k))
+    loaded, start_run = [], rc.start_run
+
+    def recording(*a):
+        loaded.append(start_run(*a))
+        return loaded[-1]
+
+    monkeypatch.setattr(rc, "start_run", recording)
+    rc.main(tiny(rc, total_steps=64 + 32, learning_starts=32, resume=True))  # 32 steps: all of them refill
+    assert calls == []
+    target = loaded[0][3]
+    assert all(torch.equal(target.state_dict()[k], v) for k, v in state["target"].items())
+    rc.main(tiny(rc, total_steps=96 + 48, learning_starts=32, resume=True))  # 16 steps past the refill learn
+    assert len(calls) == 16 * 8 // 32
+
+
+@pytest.mark.parametrize("script", ["rainbow_cpp.py", "rainbow_marl.py"])
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT])
+def test_a_signal_saves_a_checkpoint_and_exits_128_plus_its_number(script, signum, tmp_path):
+    flags = ["--total-steps", "100000000", "--num-envs", "2", "--learning-starts", "32", "--buffer-size", "2000",
+             "--hidden", "16", "--network", "compact", "--conv-width", "8", "--eval-every", "0", "--save-every", "0",
+             "--no-cuda", "--threads", "1", "--run-name", "sig"]
+    if script == "rainbow_marl.py":
+        flags += ["--init-from", ""]
+    run = subprocess.Popen([sys.executable, str(ROOT / script), *flags], cwd=tmp_path, stdout=subprocess.PIPE,
+                           stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 120
+    while not list((tmp_path / "runs" / "sig").glob("events.out.tfevents*")) and time.time() < deadline:
+        time.sleep(0.2)
+    time.sleep(3)  # inside the training loop
+    run.send_signal(signum)
+    out, err = run.communicate(timeout=120)
+    assert run.returncode == 128 + signum, err
+    assert "Traceback" not in err
+    state = torch.load(tmp_path / "runs" / "sig" / "checkpoint.pt", weights_only=True)
+    assert state["global_step"] > 0 and not (tmp_path / "runs" / "sig" / "checkpoint.pt.tmp").exists()
+
+
+def test_diagnostics_by_hand():
+    torch.manual_seed(0)
+    q = rc.build_network({"network": "compact", "frames": 1, "hidden": 4, "conv_width": 2, "scales": 3,
+                          "scale_factor": 3, "scale_view": 11}, 0.5)
+    with torch.no_grad():  # the value stream's first units never fire; the advantage stream's always do
+        q.value[0].weight_mu.zero_()
+        q.value[0].weight_sigma.zero_()
+        q.value[0].bias_mu.fill_(-1.0)
+        q.value[0].bias_sigma.zero_()
+        q.advantage[0].weight_mu.zero_()
+        q.advantage[0].weight_sigma.fill_(0.25)
+        q.advantage[0].bias_mu.fill_(1.0)
+        q.advantage[0].bias_sigma.zero_()
+    q.reset_noise(False)
+    maps, extras = torch.zeros(2, 15, 11, 11, dtype=torch.uint8), torch.zeros(2, 1 + rc.EXTRAS)
+    q_all = torch.tensor([[1.0, 4.0, 2.0, 0.0], [0.5, 0.5, 0.5, 0.5]])
+    d = rc.diagnostics_of(q, maps, extras, q_all, torch.tensor([-2.0, 1.0]), torch.tensor([0.5, 1.0]),
+                          torch.tensor(3.0))
+    assert d["q_spread"] == pytest.approx((4 + 0) / 2)
+    assert d["action_gap"] == pytest.approx((2 + 0) / 2)
+    assert d["td_error"] == pytest.approx(1.5)
+    assert d["importance_weight_min"] == 0.5 and d["grad_norm"] == 3.0
+    assert d["dead_units_value"] == 1.0 and d["dead_units_advantage"] == 0.0
+    sigmas = [m.weight_sigma.detach().abs().mean() for m in q.modules() if isinstance(m, rc.NoisyLinear)]
+    assert d["noisy_sigma"] == pytest.approx(float(torch.stack(sigmas).mean()))
+
+
+def test_the_channels_last_forward_is_the_grouped_convolution_of_scale_major_channels():
+    torch.manual_seed(1)
+    q = rc.build_network({"network": "compact", "frames": 3, "hidden": 16, "conv_width": 8, "scales": 3,
+                          "scale_factor": 3, "scale_view": 11}, 0.5)
+    q.reset_noise(False)
+    maps = torch.randint(0, 256, (5, 45, 11, 11), dtype=torch.uint8)
+    extras = torch.rand(5, 1 + 3 * rc.EXTRAS)
+    x = maps.reshape(5, 3, 3, 5, 11, 11).transpose(1, 2).reshape(5, 45, 11, 11).float() / 255  # frames within a scale
+    expected = rc.dueling(torch.cat([nn.Sequential(*q.conv)(x.contiguous()), extras], 1), q.value, q.advantage)
+    with torch.no_grad():
+        assert torch.allclose(q(maps, extras), expected, atol=1e-5)
+
+
+def docs_command() -> list[str]:
+    """The scale run's resume command as docs/rainbow_cpp.md gives it (the block after `<!-- scale-run -->`)."""
+    text = (ROOT / "docs" / "rainbow_cpp.md").read_text()
+    block = text.split("<!-- scale-run -->", 1)[1].split("```bash", 1)[1].split("```", 1)[0]
+    command = next(line for line in block.replace("\\\n", " ").splitlines() if "rainbow_cpp.py" in line)
+    words = shlex.split(command)
+    return words[words.index("rainbow_cpp.py") + 1:]
+
+
+@pytest.mark.skipif(not SCALE_CHECKPOINT.exists(), reason="the scale run has not committed its state yet")
+def test_the_committed_scale_run_resumes_with_the_documented_command(tmp_path, monkeypatch, restore_sigint):
+    flags = docs_command()
+    assert "--resume" in flags and flags[flags.index("--run-name") + 1] == "rainbow_cpp_dissertation"
+    state = rc.load_checkpoint(str(SCALE_CHECKPOINT))
+    args = tyro.cli(rc.Args, args=flags)
+    recorded = state["args"]
+    for key in ("network", "learning_rate", "stage_steps_scale", "camera_stages", "heuristic_dead_ends",
+                "heuristic_random_ties", "curve_every", "margin_loss", "hint", "teacher", "seed", "buffer_size",
+                "batch_size", "replay_ratio", "imitation", "challenging", "uncommon_patterns", "peb", "partial_reset"):
+        assert getattr(args, key) == recorded[key], key  # the docs resume the run that was started
+    run = tmp_path / "runs" / "rainbow_cpp_dissertation"
+    run.mkdir(parents=True)
+    shutil.copy(SCALE_CHECKPOINT, run / "checkpoint.pt")
+    monkeypatch.chdir(tmp_path)
+    resumed = rc.start_run(args, 6)
+    q, target = resumed[2], resumed[3]
+    assert resumed[6][:2] == (state["global_step"], state["stage"])
+    assert all(torch.equal(q.state_dict()[k], v) for k, v in state["model"].items())
+    assert all(torch.equal(target.state_dict()[k], v) for k, v in state["target"].items())
+    assert resumed[6][3] == state["curve"]
+    with torch.no_grad():
+        assert torch.isfinite(q(torch.zeros(1, 45, 11, 11, dtype=torch.uint8), torch.zeros(1, 1 + 3 * rc.EXTRAS))).all()
+    assert os.path.getsize(SCALE_CHECKPOINT) <= 20 * 2**20
+    assert np.isfinite(state["wall"])
