@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import contextlib
 import datetime
+import fcntl
 import hashlib
 import json
 import math
@@ -235,7 +236,9 @@ class Args:
     """start from these weights (a checkpoint or an export such as models/rainbow_cpp.pt)"""
     export: str | None = None
     """deployable weights (and their JSON) written at each checkpoint and at the end; default:
-    runs/RUN/rainbow_cpp.pt; ship a model with an explicit --export models/rainbow_cpp.pt"""
+    runs/RUN/rainbow_cpp.pt; ship a model with an explicit --export models/rainbow_cpp.pt (--overwrite to replace one)"""
+    overwrite: bool = False
+    """let --export replace a model (or its JSON) that was there before this run"""
 
 
 # ============================================================================= shared by the two trainers
@@ -920,7 +923,15 @@ def load_checkpoint(path: str) -> dict:
 
 # ----------------------------------------------------------------------------- the run
 def check_flags(args: Args) -> None:
-    """The flags both trainers share: a count or a chance out of range is a one-line error."""
+    """The flags both trainers share: a count or a chance out of range, a number that is not finite, more threads than
+    cores, an empty run name or an export among the reports and datasets is a one-line error."""
+    for name, value in vars(args).items():
+        if isinstance(value, float) and not math.isfinite(value):
+            raise ValueError(f"--{name.replace('_', '-')} must be a finite number, got {value}")
+    if args.threads > (os.cpu_count() or 1):
+        raise ValueError(f"--threads {args.threads}: this machine has {os.cpu_count()} cores")
+    if args.run_name is not None and not args.run_name.strip():
+        raise ValueError("--run-name must not be empty (leave it out for the default name)")
     for name, least in (("total_steps", 0), ("num_envs", 1), ("buffer_size", 1), ("batch_size", 1),
                         ("learning_starts", 0), ("demonstration_steps", 0), ("n_step", 1), ("challenging_size", 1),
                         ("eval_every", 0), ("eval_maps", 1), ("save_every", 0), ("threads", 0)):
@@ -948,6 +959,9 @@ def check_flags(args: Args) -> None:
     if args.export:  # before training, not at the first save
         if not args.export.endswith(".pt") or os.path.isdir(args.export):
             raise ValueError(f"--export must name a .pt file, got {args.export!r}")
+        if os.path.relpath(os.path.abspath(args.export), HERE).split(os.sep)[0] in ("results", "maps"):
+            raise ValueError(f"--export {args.export}: results/ and maps/ hold reports and datasets, not models; "
+                             "export under models/ or elsewhere")
         folder = os.path.dirname(os.path.abspath(args.export))
         while not os.path.exists(folder):  # the folders save_checkpoint would make: the nearest existing one
             folder = os.path.dirname(folder)
@@ -1091,13 +1105,17 @@ def start_run(args: Args, n_stages: int) -> tuple:
             raise ValueError(f"--hint contradicts {checkpoint} (no hint input); warm-start with --init-from instead")
     else:
         args = with_network(args, None if warm is None else network_of(warm, args.init_from), args.init_from)
+    outside = args.export and os.path.relpath(os.path.abspath(args.export), os.path.abspath(run_dir)).startswith("..")
+    before = [p for p in (args.export, os.path.splitext(args.export or "")[0] + ".json") if outside and os.path.isfile(p)]
+    if before and not args.overwrite:  # a run's own folder is its own; anything else that is there stays
+        raise ValueError(f"--export {args.export}: {before[0]} is there already; --overwrite replaces it")
     args = replace(args, run_name=run_name, export=args.export or os.path.join(run_dir, f"{SCRIPT}.pt"))
     device = torch.device("cuda" if args.cuda and torch.cuda.is_available() else "cpu")
     spec = {**asdict(args), "frames": args.frame_stack, "view": VIEW, "far_first": args.heuristic_far_first}
     q, target = (build_network(spec, args.sigma0).to(device) for _ in range(2))
     optimizer = torch.optim.Adam(q.parameters(), lr=args.learning_rate, eps=args.adam_eps,
                                  fused=True)  # fused: ~7x faster than the per-tensor loop on CPU
-    progress, parent, target_state = (0, 0, 0.0, []), None, None
+    progress, parent, target_state = (0, 0, 0.0, []), None, None  # a fresh run
     if state is not None:
         if not (isinstance(state["stage"], int) and 0 <= state["stage"] < n_stages):
             raise ValueError(f"{checkpoint}: stage {state['stage']} of a curriculum of {n_stages} stages")
@@ -1139,7 +1157,11 @@ def save_run(run_dir: str, q: QNetwork, target: QNetwork, optimizer: torch.optim
              parent: dict | None, machine: dict, curve: list | None = None) -> None:
     """The checkpoint (runs/RUN/checkpoint.pt: the whole training state but the replay memory, with the learning
     curve so far) and the export with its JSON: flags, network, steps, the provenance of this code and machine,
-    and the parent model's lineage."""
+    and the parent model's lineage. Weights that are not finite (a diverged run) are a ValueError and nothing is
+    written, so the last checkpoint and export stay."""
+    if not all(torch.isfinite(v).all() for v in q.state_dict().values()):
+        raise ValueError(f"the network's weights are not finite at step {global_step:,} (training diverged); "
+                         f"{run_dir} keeps its last checkpoint and export")
     save_checkpoint(os.path.join(run_dir, "checkpoint.pt"), {
         "model": q.state_dict(), "optimizer": optimizer.state_dict(), "global_step": global_step,
         "stage": stage_index, "wall": wall, "args": asdict(args), "script": SCRIPT, "numpy_rng": rng.bit_generator.state,
@@ -1153,6 +1175,19 @@ def save_run(run_dir: str, q: QNetwork, target: QNetwork, optimizer: torch.optim
                        "wall_seconds": round(wall, 1),
                        "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")},
         "parent": parent})
+
+
+def lock_run(run_dir: str):
+    """An exclusive lock on runs/RUN/.lock for as long as the returned file stays open (until the process ends):
+    a second run in the same folder is a one-line error instead of two runs writing one checkpoint."""
+    os.makedirs(run_dir, exist_ok=True)
+    lock = open(os.path.join(run_dir, ".lock"), "w")
+    try:
+        fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        lock.close()
+        raise ValueError(f"{run_dir} is in use by another run; wait for it or choose another --run-name") from None
+    return lock
 
 
 def stop_signals() -> tuple[dict, dict]:
@@ -1468,6 +1503,7 @@ def main(args: Args) -> None:
                     None if observation["observation"] == "deep" else channels, args.hint)
     print(f"{run_dir}: {args.network} network on {device}, replay {replay.bytes_per_transition()} bytes per transition, "
           f"{replay.bytes_per_transition() * args.buffer_size / 2**30:.2f} GiB for {args.buffer_size:,}")
+    lock = lock_run(run_dir)  # held until this run ends
     from torch.utils.tensorboard import SummaryWriter
     writer = SummaryWriter(run_dir)
     writer.add_text("hyperparameters", "|param|value|\n|-|-|\n" + "\n".join(f"|{k}|{v}|" for k, v in asdict(args).items()))
@@ -1666,6 +1702,7 @@ def main(args: Args) -> None:
     writer.close()
     for signum, handler in previous_handlers.items():
         signal.signal(signum, handler)
+    lock.close()
     print(f"saved {os.path.join(run_dir, 'checkpoint.pt')} and {args.export} at step {global_step:,}")
     if stop["signal"]:  # interrupted: the shell's convention, 130 for Ctrl-C and 143 for SIGTERM
         raise SystemExit(128 + stop["signal"])
