@@ -800,17 +800,30 @@ def write_episode_video(scenario: gridworld.Scenario, path: np.ndarray, video: s
 
 # ----------------------------------------------------------------------------- files
 def save_checkpoint(path: str, state: dict) -> None:
+    """torch.save through a temporary file and a rename: a crash never leaves half a checkpoint, and a full disk is a
+    one-line ValueError that leaves the previous file and no temporary one."""
     os.makedirs(os.path.dirname(path) or ".", exist_ok=True)
     tmp = path + ".tmp"
-    torch.save(state, tmp)
-    os.replace(tmp, path)  # atomic: a crash never leaves half a checkpoint
+    try:
+        torch.save(state, tmp)
+        os.replace(tmp, path)
+    except OSError as e:
+        with contextlib.suppress(OSError):
+            os.remove(tmp)
+        raise ValueError(f"{path}: cannot write ({e.strerror or e}); the previous file stays") from None
 
 
 def write_json(path: str, data: dict) -> None:
+    """A JSON file written as save_checkpoint writes weights (strict JSON: a number that is not finite is refused)."""
     tmp = path + ".tmp"
-    with open(tmp, "w") as f:
-        json.dump(data, f, indent=1)
-    os.replace(tmp, path)  # atomic, as the weights beside it
+    try:
+        with open(tmp, "w") as f:
+            json.dump(data, f, indent=1, allow_nan=False)
+        os.replace(tmp, path)
+    except (OSError, ValueError) as e:
+        with contextlib.suppress(OSError):
+            os.remove(tmp)
+        raise ValueError(f"{path}: cannot write ({getattr(e, 'strerror', None) or e}); the previous file stays") from None
 
 
 def export(q: QNetwork, args: Args, info: dict) -> None:
@@ -917,7 +930,7 @@ def check_flags(args: Args) -> None:
         raise ValueError(f"--threads {args.threads}: this machine has {os.cpu_count()} cores")
     if args.run_name is not None and not args.run_name.strip():
         raise ValueError("--run-name must not be empty (leave it out for the default name)")
-    for name, least in (("total_steps", 0), ("num_envs", 1), ("buffer_size", 1), ("batch_size", 1),
+    for name, least in (("seed", 0), ("total_steps", 0), ("num_envs", 1), ("buffer_size", 1), ("batch_size", 1),
                         ("learning_starts", 0), ("demonstration_steps", 0), ("n_step", 1), ("challenging_size", 1),
                         ("eval_every", 0), ("eval_maps", 1), ("save_every", 0), ("threads", 0)):
         if getattr(args, name) < least:
