@@ -912,6 +912,8 @@ def policy_from(blob: dict, path: str) -> QNetwork:
                          f"({reason(e)})") from None
     if unexpected or any("sigma" not in k and "eps" not in k for k in missing):
         raise ValueError(f"{path}: weights do not match this network")
+    if not all(torch.isfinite(v).all() for v in q.state_dict().values()):
+        raise ValueError(f"{path}: its weights are not finite (the run that made it diverged)")
     q.reset_noise(False)
     return q.eval()
 

@@ -102,3 +102,16 @@ def test_a_diverged_network_is_never_saved(name, tmp_path, monkeypatch, restore_
     with pytest.raises(ValueError, match="not finite at step"):
         t.main(tiny(t, total_steps=200, resume=True))
     assert digest(ckpt) == before
+
+
+@pytest.mark.parametrize("name", TRAINERS)
+def test_a_model_with_weights_that_are_not_finite_is_refused_at_load(name, tmp_path, monkeypatch, restore_sigint):
+    t = TRAINERS[name]
+    monkeypatch.chdir(tmp_path)
+    t.main(tiny(t, export=str(tmp_path / "m.pt")))
+    blob = torch.load(tmp_path / "m.pt", weights_only=True)
+    first = next(iter(blob["weights"]))
+    blob["weights"][first] = torch.full_like(blob["weights"][first], float("inf"))
+    torch.save(blob, tmp_path / "bad.pt")
+    with pytest.raises(ValueError, match="bad.pt: its weights are not finite"):
+        t.load_policy(str(tmp_path / "bad.pt"))
