@@ -29,6 +29,7 @@ import contextlib
 import datetime
 import fcntl
 import hashlib
+import importlib.util
 import json
 import math
 import os
@@ -77,6 +78,12 @@ class Args:
     """torch CPU threads (0: torch's default, e.g. from OMP_NUM_THREADS); the docs' figures are for one"""
     cuda: bool = True
     """train and act on the GPU when there is one (as CleanRL); --no-cuda keeps everything on the CPU"""
+    track: bool = False
+    """mirror the TensorBoard logs to Weights & Biases (as CleanRL; needs `pip install wandb`)"""
+    wandb_project_name: str = "gridworld-rl"
+    """the Weights & Biases project of --track"""
+    wandb_entity: str | None = None
+    """the Weights & Biases team of --track (default: your own account)"""
     torch_deterministic: bool = True
     """torch.backends.cudnn.deterministic (as CleanRL); no effect on the CPU"""
     compile: bool = False
@@ -945,6 +952,8 @@ def check_flags(args: Args) -> None:
             raise ValueError(f"--{name.replace('_', '-')} must be a finite number, got {value}")
     if args.threads > (os.cpu_count() or 1):
         raise ValueError(f"--threads {args.threads}: this machine has {os.cpu_count()} cores")
+    if args.track and importlib.util.find_spec("wandb") is None:
+        raise ValueError("--track needs Weights & Biases: pip install wandb")
     if args.run_name is not None and not args.run_name.strip():
         raise ValueError("--run-name must not be empty (leave it out for the default name)")
     for name, least in (("seed", 0), ("total_steps", 0), ("num_envs", 1), ("buffer_size", 1), ("batch_size", 1),
@@ -1519,6 +1528,10 @@ def main(args: Args) -> None:
     print(f"{run_dir}: {args.network} network on {device}, replay {replay.bytes_per_transition()} bytes per transition, "
           f"{replay.bytes_per_transition() * args.buffer_size / 2**30:.2f} GiB for {args.buffer_size:,}")
     lock = lock_run(run_dir)  # held until this run ends
+    if args.track:  # CleanRL's way: W&B mirrors the TensorBoard events
+        import wandb
+        wandb.init(project=args.wandb_project_name, entity=args.wandb_entity, sync_tensorboard=True,
+                   config=asdict(args), name=os.path.basename(run_dir), dir=run_dir, save_code=True)
     from torch.utils.tensorboard import SummaryWriter
     writer = SummaryWriter(run_dir)
     writer.add_text("hyperparameters", "|param|value|\n|-|-|\n" + "\n".join(f"|{k}|{v}|" for k, v in asdict(args).items()))
@@ -1718,6 +1731,8 @@ def main(args: Args) -> None:
     for signum, handler in previous_handlers.items():
         signal.signal(signum, handler)
     lock.close()
+    if args.track:
+        wandb.finish()
     print(f"saved {os.path.join(run_dir, 'checkpoint.pt')} and {args.export} at step {global_step:,}")
     if stop["signal"]:  # interrupted: the shell's convention, 130 for Ctrl-C and 143 for SIGTERM
         raise SystemExit(128 + stop["signal"])

@@ -1,0 +1,37 @@
+"""CleanRL's --track: Weights & Biases mirrors a trainer's TensorBoard logs; wandb is an optional dependency."""
+from __future__ import annotations
+
+import importlib.util
+
+import pytest
+
+import rainbow_cpp as rc
+import rainbow_marl as rm
+
+TRAINERS = {"rainbow_cpp": rc, "rainbow_marl": rm}
+
+
+def tiny(t, **kw):
+    base = dict(run_name="t", total_steps=32, num_envs=2, learning_starts=16, buffer_size=2000, hidden=16,
+                eval_every=0, save_every=0, quiet=True, cuda=False, network="compact", conv_width=8)
+    if t is rm:
+        base["init_from"] = ""
+    return t.Args(**{**base, **kw})
+
+
+@pytest.mark.parametrize("name", TRAINERS)
+def test_track_without_wandb_is_a_one_line_error(name, monkeypatch):
+    t = TRAINERS[name]
+    find_spec = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda n, *a: None if n == "wandb" else find_spec(n, *a))
+    with pytest.raises(ValueError, match=r"^--track needs Weights & Biases: pip install wandb$"):
+        t.check_flags(tiny(t, track=True))
+
+
+@pytest.mark.skipif(importlib.util.find_spec("wandb") is None, reason="wandb is optional and not installed")
+def test_track_logs_offline(tmp_path, monkeypatch, restore_sigint):
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("WANDB_MODE", "offline")
+    monkeypatch.setenv("WANDB_SILENT", "true")
+    rc.main(tiny(rc, track=True, wandb_project_name="test"))
+    assert list((tmp_path / "runs" / "t" / "wandb").glob("offline-run-*"))
