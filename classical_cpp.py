@@ -10,6 +10,7 @@ and it rejects illegal or incomplete paths.
     python classical_cpp.py --planner greedy --dataset maps/cpp_eval.npz --limit 200
     python classical_cpp.py --planner partition --dataset maps/marl_eval.npz --agents 5
     python classical_cpp.py --report --out DIR     # every planner on the report's maps -> DIR/classical_cpp.json
+    python classical_cpp.py --report --overwrite   # ... -> results/classical_cpp.json, replacing the committed one
     python classical_cpp.py --report --structured-per-band 1 --per-size 2 --out DIR   # a quicker one
 
 Single agent: greedy (the navigation heuristic run to completion), greedy-dead-ends (the same
@@ -843,6 +844,8 @@ class Args:
     """structured_eval maps per family and size band for --report (4 families x 4 bands)"""
     quiet: bool = False
     """no progress bar"""
+    overwrite: bool = False
+    """let --report replace an existing OUT/classical_cpp.json (the committed results/classical_cpp.json by default)"""
 
 
 def load_scenarios(args: Args) -> list[Scenario]:
@@ -1163,6 +1166,9 @@ def write_json(path: str, data: dict) -> str:
     try:
         os.makedirs(folder, exist_ok=True)
         fd, tmp = tempfile.mkstemp(dir=folder, prefix=".tmp-", suffix=".json")
+        umask = os.umask(0o022)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; the file gets what open() would have given it
     except OSError as e:
         raise ValueError(f"{path}: cannot write ({e.strerror})") from None
     try:
@@ -1200,7 +1206,12 @@ def main(args: Args) -> None:
     if args.report and (args.maps or args.dataset):
         raise ValueError("--report plans its own maps (see --help); drop --maps and --dataset")
     if args.report:
-        report(args.per_size, args.out or os.path.join(ROOT, "results"), args.quiet, args.structured_per_band)
+        out = args.out or os.path.join(ROOT, "results")
+        target = os.path.join(out, "classical_cpp.json")
+        if os.path.lexists(target) and not args.overwrite:  # checked before the minutes of planning
+            raise ValueError(f"--out {out} already holds classical_cpp.json: --overwrite replaces it (report.py "
+                             "collect asks the same)")
+        report(args.per_size, out, args.quiet, args.structured_per_band)
         return
     if args.planner not in PLANNERS:
         raise ValueError(f"unknown planner {args.planner!r}; choose from {sorted(PLANNERS)}")
@@ -1226,7 +1237,5 @@ def main(args: Args) -> None:
 
 
 if __name__ == "__main__":
-    try:
+    with gridworld.cli_errors():  # Ctrl-C: one line, exit 130; --out and --report are written only at the end
         main(gridworld.cli(Args))
-    except ValueError as e:
-        raise SystemExit(f"error: {e}") from None

@@ -47,6 +47,7 @@ import math
 import os
 import pickle
 import re
+import signal
 import sys
 import zipfile
 import zlib
@@ -159,8 +160,20 @@ def _load(loader, path: str, what: str):
         raise ValueError(f"{path}: not a readable {what} ({(str(e).splitlines() or [type(e).__name__])[0]})") from None
 
 
+def _finite_model(q, path: str, what: str):
+    """The loaded network `q`, refused (a one-line ValueError) if any weight is nan or inf: a diverged model would be
+    scored as if it were a policy."""
+    for name, value in q.state_dict().items():
+        if value.is_floating_point() and not bool(value.isfinite().all()):
+            raise ValueError(f"{path}: not a usable {what}: its weights are not finite ({name} holds nan or inf)")
+    return q
+
+
 def _check_counts(args: Args) -> None:
     """The counts and sizes scenarios_from uses, each a one-line error naming its flag."""
+    for name, value in vars(args).items():
+        if isinstance(value, float) and not math.isfinite(value):
+            raise ValueError(f"--{name.replace('_', '-')} must be a finite number, got {value}")
     for flag, value, least in (("--agents", args.agents, 1), ("--every", args.every, 1), ("--limit", args.limit, 0),
                                ("--min-size", args.min_size, 0), ("--max-size", args.max_size, 0),
                                ("--seed", args.seed, 0)):
@@ -191,7 +204,8 @@ def read_starts(path: str, names: list[str]) -> dict[str, np.ndarray]:
             raise ValueError(f"{path}: {name}: not a non-empty list of starts; {usage}")
         cells = [e.get("start") if isinstance(e, dict) else e for e in entries]
         for entry, cell in zip(entries, cells):
-            if not (isinstance(cell, list) and len(cell) == 2 and all(type(v) is int for v in cell)):
+            if not (isinstance(cell, list) and len(cell) == 2
+                    and all(type(v) is int and -2 ** 31 <= v < 2 ** 31 for v in cell)):  # int64 holds them
                 raise ValueError(f"{path}: {name}: {json.dumps(entry)[:60]} is not a [row, col] start; {usage}")
         out[name] = np.array(cells, np.int64)
     unknown = [n for n in out if n not in names]
@@ -274,6 +288,12 @@ def run_planner(policy: str, episodes: list[tuple[str, Scenario]], trajectories:
     return [_row(name, s, classical_cpp.replay(s, p)) for (name, s), p in zip(episodes, paths)]
 
 
+def _quiet_worker() -> None:
+    """A --workers process dies of Ctrl-C or SIGTERM without a traceback of its own; the main process reports."""
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(signum, signal.SIG_DFL)
+
+
 def _run_chunk(job):
     policy, chunk, record, rollout_base = job
     trajectories = [] if record else None
@@ -287,7 +307,7 @@ def _plan_rows(args: Args, policy: str, episodes: list[tuple[str, Scenario]], pa
                        lambda part, i, trajectories: run_planner(policy, part, trajectories, args.rollout_base), policy,
                        args.quiet, paths)
     k = -(-len(episodes) // args.workers)  # contiguous chunks, so the rows keep the episodes' order
-    with ProcessPoolExecutor(args.workers) as pool:
+    with ProcessPoolExecutor(args.workers, initializer=_quiet_worker) as pool:
         jobs = {i: pool.submit(_run_chunk, (policy, episodes[i:i + k], any(i <= j < i + k for j in paths or ()),
                                             args.rollout_base))
                 for i in range(0, len(episodes), k)}
@@ -319,8 +339,8 @@ def _rainbow(args: Args, rollout: bool = False):
         raise ValueError("rainbow is single-agent; use --agents 1 (marl for several)")
     if args.faulty_agent_at is not None or args.action_loss:
         raise ValueError("--faulty-agent-at and --action-loss need several agents (the marl policy)")
-    q = _load(rainbow_cpp.load_policy, checkpoint_of(args, "rainbow-rollout" if rollout else "rainbow"),
-              "rainbow_cpp model")
+    path = checkpoint_of(args, "rainbow-rollout" if rollout else "rainbow")
+    q = _finite_model(_load(rainbow_cpp.load_policy, path, "rainbow_cpp model"), path, "rainbow_cpp model")
     frames = q.conv[0].in_channels // 4
     if args.hint_bonus and not q.network().get("hint"):
         raise ValueError("--hint-bonus needs a model with the hint input (rainbow_cpp.py --hint)")
@@ -348,7 +368,8 @@ def _marl(args: Args):
         raise ValueError("--faulty-agent-at needs --agents >= 2 and a fraction in [0, 1]")
     if not 0 <= args.action_loss < 1:
         raise ValueError(f"--action-loss must be in [0, 1), got {args.action_loss}")
-    q = _load(rainbow_marl.load_policy, checkpoint_of(args, "marl"), "rainbow_marl model")
+    path = checkpoint_of(args, "marl")
+    q = _finite_model(_load(rainbow_marl.load_policy, path, "rainbow_marl model"), path, "rainbow_marl model")
     frames = q.conv[0].in_channels // 4
 
     def rollout(part, i, trajectories):
@@ -375,6 +396,8 @@ def _tabular(args: Args):
         raise ValueError("tabular: --sensor-failure, --faulty-agent-at and --action-loss are not modelled in chapter 5")
     path = checkpoint_of(args, "tabular")
     table = _load(tabular_q.QTable.load, path, "tabular_q table")
+    if not np.isfinite(table.q[:, :table.size]).all():
+        raise ValueError(f"{path}: not a usable tabular_q table: its Q-values are not finite (nan or inf)")
     if table.sensor_range != args.sensor_range:
         raise ValueError(f"{path}: trained with r = {table.sensor_range}; --sensor-range is {args.sensor_range}")
 
@@ -732,12 +755,10 @@ def _commit(files: dict, quiet: bool) -> None:
 if __name__ == "__main__":
     import report  # report.py imports this module, so only here: `python evaluate.py report ...` is report.py's CLI
 
-    try:
+    with gridworld.cli_errors():  # Ctrl-C or SIGTERM: one line, 130 / 143; --out is written only at the end, all at once
         command = gridworld.cli(report.beside(Args(), "evaluate", "evaluate a policy on maps"), default=Args(),
                                 description=__doc__, config=report.CLI_CONFIG)
         if isinstance(command, Args):
             main(command)
         else:
             report.main(command)
-    except ValueError as e:
-        raise SystemExit(f"error: {e}") from None

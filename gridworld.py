@@ -37,12 +37,14 @@ Conventions
 """
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import functools
 import json
 import math
 import numbers
 import os
+import signal
 import sys
 import time
 import zipfile
@@ -77,6 +79,10 @@ VIEW_SIZE = 41  # default side V of the deep observation's window (§6.3.2, Fig.
 FRAME_FEATURES = 5 + 4 * 2  # per stacked frame beside the map: last_action one-hot + out_of_bounds (§6.3.2.7)
 BATTERY_FEATURES = 1  # the battery enters the network once, not per frame
 OUT_OF_BOUNDS_SCALE = 100.0  # the networks read out_of_bounds (eq. 6.5 counts of rows and cells) divided by this
+MAX_MAP_SIDE = 256  # the longest map side any config, .map file or dataset may have (the repo's maps are <= 48): checked
+# before anything is allocated, so a typo (size: 100000) is a one-line error, not a process killed at 22 GB
+MAX_DATASET_CELLS = 1 << 28  # cells (maps x rows x columns) of a dataset's padded arrays; maps/ holds at most 9 M
+MAX_MAP_FILE_BYTES = 16 << 20  # a .map/ASCII map file is read whole; a 256x256 map is ~66 kB
 
 
 # ----------------------------------------------------------------------------- configuration
@@ -142,13 +148,13 @@ class FamilyParams:
             raise ValueError(f"invalid map family parameters: {msg}")
 
         def number(v):
-            return isinstance(v, numbers.Real) and not isinstance(v, (bool, np.bool_))
+            return isinstance(v, numbers.Real) and not isinstance(v, (bool, np.bool_)) and math.isfinite(v)
 
         for name, low in (("room_size", 1), ("door_width", 1), ("passage_width", 1), ("passage_gap", 1),
                           ("block_count", 0), ("block_size", 1), ("maze_width", 1)):
             r = getattr(self, name)
             if not (isinstance(r, (tuple, list)) and len(r) == 2 and all(number(v) for v in r)):
-                bad(f"{name} must be a (min, max) pair of numbers, got {r!r}")
+                bad(f"{name} must be a (min, max) pair of finite numbers, got {r!r}")
             if name != "block_count" and not all(float(v).is_integer() for v in r):
                 bad(f"{name} must hold whole cell counts, got {r!r}")
             if not low <= r[0] <= r[1]:
@@ -243,6 +249,8 @@ class EnvConfig:
                     continue
                 if not isinstance(value, SETTING_KINDS[kind]) or (kind in ("int", "float") and isinstance(value, bool)):
                     bad(f"{f.name} must be {'an' if kind == 'int' else 'a'} {kind}, got {value!r}")
+                if kind == "float" and not math.isfinite(value):  # nan passes every comparison check below
+                    bad(f"{f.name} must be a finite number, got {value!r}")
         if self.sensor not in SENSORS:
             bad(f"sensor must be one of {SENSORS}, got {self.sensor!r}")
         if self.observation not in OBSERVATIONS:
@@ -255,6 +263,8 @@ class EnvConfig:
                 f"4096, got scales={self.scales} scale_factor={self.scale_factor} scale_view={self.scale_view}")
         if self.reward.structure not in STRUCTURES:
             bad(f"reward structure must be one of {STRUCTURES}, got {self.reward.structure!r}")
+        if self.size > MAX_MAP_SIDE:
+            bad(f"size must be at most {MAX_MAP_SIDE} (the largest map side, gridworld.MAX_MAP_SIDE), got {self.size}")
         if self.size < 2 or (self.random_size and not 2 <= self.min_size <= self.size):
             bad(f"need 2 <= min_size <= size, got size={self.size} min_size={self.min_size}")
         if self.number_agents < 1:
@@ -303,7 +313,6 @@ class EnvConfig:
 def cli(f, **kwargs):
     """tyro.cli(f, **kwargs) for the scripts, with a flag tyro cannot parse reported as one line `error: ...` on
     stderr and a non-zero exit, like every other bad input, in place of tyro's box; --help is tyro's own."""
-    import contextlib
     import io
 
     import tyro  # here, not above: the environment's users need no CLI parser
@@ -326,24 +335,83 @@ def cli(f, **kwargs):
     return parsed
 
 
+class _DuplicateKey(yaml.YAMLError):
+    """A key given twice in one YAML mapping (PyYAML keeps the last silently)."""
+
+    def __init__(self, key, line: int):
+        super().__init__(f"{key!r} is given twice (again at line {line})")
+        self.key, self.line = key, line
+
+
+class _UniqueKeyLoader(yaml.SafeLoader):
+    """yaml.SafeLoader refusing a key repeated in one mapping: a second stage (or setting) of the same name would
+    silently replace the first."""
+
+    def construct_mapping(self, node, deep=False):
+        if isinstance(node, yaml.MappingNode):
+            seen = set()
+            for key_node, _ in node.value:
+                if key_node.tag == "tag:yaml.org,2002:merge":
+                    continue
+                key = self.construct_object(key_node, deep=deep)
+                try:
+                    if key in seen:
+                        raise _DuplicateKey(key, key_node.start_mark.line + 1)
+                    seen.add(key)
+                except TypeError:  # an unhashable key: SafeLoader's own error follows
+                    pass
+        return super().construct_mapping(node, deep)
+
+
+def _interrupt(signum, frame):
+    raise KeyboardInterrupt(signum)
+
+
+@contextlib.contextmanager
+def cli_errors(interrupted: str = "nothing written"):
+    """The `__main__` block of a script: `with gridworld.cli_errors(): main(gridworld.cli(Args))`. A ValueError is
+    one `error: ...` line on stderr and exit status 1; Ctrl-C (SIGINT) or SIGTERM is one line, `error: interrupted
+    by SIGINT; <interrupted>`, and the shell's 130 or 143, never a traceback. SIGTERM raises KeyboardInterrupt
+    (with the signal number) while the block runs."""
+    previous = signal.signal(signal.SIGTERM, _interrupt)
+    try:
+        yield
+    except ValueError as e:
+        raise SystemExit(f"error: {e}") from None
+    except KeyboardInterrupt as e:
+        signum = e.args[0] if e.args and isinstance(e.args[0], int) else int(signal.SIGINT)
+        signal.signal(signal.SIGINT, signal.SIG_IGN)  # a second Ctrl-C while leaving prints no traceback either
+        print(f"error: interrupted by {signal.Signals(signum).name}; {interrupted}", file=sys.stderr, flush=True)
+        raise SystemExit(128 + signum) from None
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
 def load_config(path: str) -> dict[str, EnvConfig]:
     """Named environments from a YAML file (curriculum stages, Table 4.1 keys).
 
-    The file is either a mapping name -> settings or a list of settings each with a `name`."""
+    The file is either a mapping name -> settings or a list of settings each with a `name`. A name (or a setting)
+    given twice is an error, not the last one winning."""
     path = os.fspath(path)
     try:
         with open(path, encoding="utf-8") as f:
-            data = yaml.safe_load(f)
+            data = yaml.load(f, Loader=_UniqueKeyLoader)  # a SafeLoader, stricter
     except OSError as e:
         raise ValueError(f"{path}: cannot read config ({e.strerror})") from None
     except UnicodeDecodeError:
         raise ValueError(f"{path}: not a text file") from None
+    except _DuplicateKey as e:
+        raise ValueError(f"{path}: duplicate name: {e}") from None
     except yaml.YAMLError as e:
         raise ValueError(f"{path}: not valid YAML ({str(e).splitlines()[0]})") from None
     if isinstance(data, list):
         if not all(isinstance(d, dict) for d in data):
             raise ValueError(f"{path}: every list item must be a mapping of settings")
-        data = {str(d.get("name", f"env{i + 1}")): d for i, d in enumerate(data)}
+        names = [str(d.get("name", f"env{i + 1}")) for i, d in enumerate(data)]
+        twice = next((n for i, n in enumerate(names) if n in names[:i]), None)
+        if twice is not None:
+            raise ValueError(f"{path}: duplicate name: {twice!r} names two list items")
+        data = dict(zip(names, data))
     if not isinstance(data, dict) or not all(isinstance(v, dict) for v in data.values()):
         raise ValueError(f"{path}: expected a mapping of environment names to settings")
     configs = {}
@@ -366,12 +434,20 @@ class Scenario:
     covered: np.ndarray | None = None
 
 
+def check_map_side(h: int, w: int, where: str) -> None:
+    """A ValueError naming the limit if an h x w map is larger than MAX_MAP_SIDE on a side."""
+    if max(h, w) > MAX_MAP_SIDE:
+        raise ValueError(f"{where}: a {h}x{w} map is larger than the largest map side allowed, "
+                         f"{MAX_MAP_SIDE} (gridworld.MAX_MAP_SIDE)")
+
+
 def _parse_rows(rows: list[str], path: str, first_line: int) -> Scenario:
     if not rows:
         raise ValueError(f"{path}: no map rows")
     widths = {len(r) for r in rows}
     if len(widths) != 1:
         raise ValueError(f"{path}: ragged rows (lengths {sorted(widths)})")
+    check_map_side(len(rows), len(rows[0]), path)
     chars = np.array([list(r) for r in rows])
     known = FREE_CHARS | BLOCKED_CHARS | set("0123456789x")
     unknown = ~np.isin(chars, list(known))
@@ -396,6 +472,9 @@ def load_map(path: str) -> Scenario:
     digits 0-9 agent starts). Raises ValueError naming the file and the problem."""
     path = os.fspath(path)
     try:
+        if os.path.isfile(path) and os.path.getsize(path) > MAX_MAP_FILE_BYTES:
+            raise ValueError(f"{path}: over {MAX_MAP_FILE_BYTES >> 20} MB, larger than any map of at most "
+                             f"{MAX_MAP_SIDE}x{MAX_MAP_SIDE} cells (gridworld.MAX_MAP_SIDE)")
         with open(path, encoding="utf-8") as f:
             lines = f.read().splitlines()
     except OSError as e:
@@ -411,6 +490,7 @@ def load_map(path: str) -> Scenario:
             h, w = int(header[1][1]), int(header[2][1])
         except (IndexError, ValueError):
             raise ValueError(f"{path}: bad MovingAI header (height/width not integers)") from None
+        check_map_side(h, w, path)
         rows = [ln for ln in lines[4:] if ln.strip()]
         if len(rows) != h or any(len(r) != w for r in rows):
             raise ValueError(f"{path}: header says {h}x{w} but the rows do not match")
@@ -520,6 +600,17 @@ def load_dataset(path: str) -> list[Scenario]:
         raise bad("no such file" if not os.path.exists(path) else "not a file")
     if not zipfile.is_zipfile(path):
         raise bad("not an .npz archive")
+    try:  # the shapes first, from the .npy headers, so that nothing too large is ever decompressed
+        shapes = _npz_shapes(path)
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error) as e:
+        raise bad((str(e).splitlines() or [type(e).__name__])[0]) from None
+    shape = shapes.get("obstacles")
+    if shape is not None and len(shape) == 3:
+        check_map_side(shape[1], shape[2], path)
+    for name, shape in shapes.items():
+        if math.prod(shape) > MAX_DATASET_CELLS:
+            raise ValueError(f"{path}: its {name!r} array of shape {shape} holds {math.prod(shape):,} values, more than "
+                             f"the {MAX_DATASET_CELLS:,} allowed (gridworld.MAX_DATASET_CELLS); split the dataset")
     try:
         with np.load(path) as data:
             arrays = {k: data[k] for k in ("obstacles", "sizes", "starts", "covered") if k in data.files}
@@ -553,6 +644,26 @@ def load_dataset(path: str) -> list[Scenario]:
                             covered[i, :h, :w].copy() if covered[i].any() else None))
     check_scenarios(out, path)
     return out
+
+
+def _npz_shapes(path: str) -> dict[str, tuple[int, ...]]:
+    """The shape of each array of an .npz, read from the .npy headers alone (nothing is decompressed past them);
+    arrays whose header this numpy cannot read are left out."""
+    shapes = {}
+    with zipfile.ZipFile(path) as archive:
+        for info in archive.infolist():
+            if not info.filename.endswith(".npy"):
+                continue
+            with archive.open(info) as f:
+                version = np.lib.format.read_magic(f)
+                if version == (1, 0):
+                    shape = np.lib.format.read_array_header_1_0(f)[0]
+                elif version == (2, 0):
+                    shape = np.lib.format.read_array_header_2_0(f)[0]
+                else:
+                    continue
+            shapes[info.filename[:-len(".npy")]] = tuple(int(n) for n in shape)
+    return shapes
 
 
 def _invalid_scenarios(obstacles: np.ndarray, sizes: np.ndarray, starts: np.ndarray) -> np.ndarray:

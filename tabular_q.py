@@ -3,7 +3,7 @@
     python tabular_q.py --algorithm q-learning --size 6 --corner-starts --episodes 100000   # Fig. 5.4
     python tabular_q.py --algorithm watkins --size 6 --corner-starts --number-obstacles 1 --no-heuristic
     python tabular_q.py --min-size 4 --size 10 --number-obstacles 3 --obstacles-random \\
-        --episodes 3000000 --time-limit 2400 --num-worlds 512 --table-path models/tabular_q.npz  # Fig. 5.5
+        --episodes 3000000 --time-limit 2400 --num-worlds 512 --table-path models/tabular_q.npz --overwrite  # Fig. 5.5
 
 The agent never sees the map: its state is the last K pairs (r'_t, a_{t-1}) of transformed range
 readings (gridworld's tabular observation, §5.3.1) and the move that led to them, packed into one
@@ -15,18 +15,25 @@ together; Q-learning, SARSA (Algorithm 4), Double Q-learning (Algorithm 5) and W
 by default to runs/RUN_NAME/tabular_q.npz (RUN_NAME = {exp_name}__{seed}__{unix time} unless
 --run-name; models/ only when --table-path names it), with a .json beside it recording how it
 was trained (flags, git commit, CPU, date, wall time) and the learning curve (mean ρ per
-`curve_window` episodes).
+`curve_window` episodes). Both are written through temporary files in the same folder, so the
+previous table survives a kill or a full disk; a path under maps/ or results/ is refused, an
+existing file that is not a tabular_q table (or its .json) is never replaced, and a table is
+replaced only with --overwrite. Ctrl-C or SIGTERM ends training early: the table so far is saved
+as at --time-limit, and the exit status is 130 (SIGINT) or 143 (SIGTERM).
 """
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import math
 import os
 import shlex
+import signal
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 import zipfile
 import zlib
@@ -43,6 +50,11 @@ HEURISTIC = 4  # the fifth action of §5.3.2 (to the environment, 4 is WAIT: no 
 NO_MOVE = 4  # the last-move code of an episode's first reading
 READING_OF_MOVE = np.array([0, 1, 3, 2])  # r' is ordered N, S, E, W; moves are N, S, W, E
 HASH = np.uint64(0x9E3779B97F4A7C15)  # Fibonacci hashing multiplier (2^64 / golden ratio)
+ROOT = os.path.dirname(os.path.realpath(__file__))
+PROTECTED = ("maps", "results")  # committed datasets and report numbers: never a table's place
+UMASK = os.umask(0o022)
+os.umask(UMASK)
+TABLE_ARRAYS = ("keys", "q", "visits", "updates", "memory", "sensor_range")  # what QTable.save writes
 
 
 @dataclass
@@ -93,7 +105,9 @@ class Args:
     """seed of the maps, starts and the policy's coin flips"""
     table_path: str | None = None
     """where the table (.npz) is written, its .json of how it was trained beside it; default:
-    runs/RUN_NAME/tabular_q.npz (models/ is written only when named here)"""
+    runs/RUN_NAME/tabular_q.npz (models/ is written only when named here; maps/ and results/ never)"""
+    overwrite: bool = False
+    """let --table-path replace an existing tabular_q table and its .json (a file that is not one is never replaced)"""
     init_table: str | None = None
     """continue training this table (it must have the same K and r)"""
     log_every: int = 10_000
@@ -149,6 +163,67 @@ def allowed_actions(readings: np.ndarray, heuristic: bool) -> np.ndarray:
     else:
         allowed[stuck, :4] = True
     return allowed
+
+
+# ----------------------------------------------------------------------------- files
+@contextlib.contextmanager
+def staged(path: str, mode: str = "wb"):
+    """`with staged(path, mode) as f:` a file object on a temporary file in path's folder that replaces `path`
+    (os.replace, atomic) only when the block ends without an exception; otherwise it is removed and `path` is as
+    it was."""
+    fd, tmp = tempfile.mkstemp(dir=os.path.dirname(os.path.abspath(path)), prefix=f".{os.path.basename(path)}.",
+                               suffix=".tmp")
+    try:
+        os.chmod(tmp, 0o666 & ~UMASK)  # mkstemp makes 0600; the file gets what open() would have given it
+        with os.fdopen(fd, mode) as f:
+            yield f
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+
+
+def is_table(path: str) -> bool:
+    """Whether `path` is an .npz with the arrays QTable.save writes (read from the zip's listing alone)."""
+    try:
+        with zipfile.ZipFile(path) as archive:
+            names = set(archive.namelist())
+    except (OSError, zipfile.BadZipFile, ValueError):
+        return False
+    return all(f"{name}.npy" in names for name in TABLE_ARRAYS)
+
+
+def is_table_json(path: str) -> bool:
+    """Whether `path` is the .json tabular_q writes beside a table (its flags, states and learning curve)."""
+    try:
+        with open(path, encoding="utf-8") as f:
+            data = json.load(f)
+    except (OSError, ValueError):
+        return False
+    return (isinstance(data, dict) and {"args", "states", "curve_rho"} <= set(data)
+            and isinstance(data["args"], dict) and "algorithm" in data["args"])
+
+
+def check_table_path(table_path: str, overwrite: bool) -> None:
+    """The write rule of --table-path: nowhere under maps/ or results/ of this repository; an existing file there
+    (the .npz or the .json beside it) must be a tabular_q table or its .json, and is replaced only with
+    --overwrite."""
+    real = os.path.realpath(table_path)
+    for folder in PROTECTED:
+        guarded = os.path.join(ROOT, folder)
+        if os.path.commonpath([real, guarded]) == guarded:
+            raise ValueError(f"--table-path {table_path}: inside {folder}/, which holds committed "
+                             f"{'datasets' if folder == 'maps' else 'report results'}; write tables to runs/ or models/")
+    json_path = os.path.splitext(table_path)[0] + ".json"
+    for path, ours, what in ((table_path, is_table, "a tabular_q table"),
+                             (json_path, is_table_json, "a tabular_q table's .json")):
+        if os.path.lexists(path) and not (os.path.isfile(path) and ours(path)):
+            raise ValueError(f"--table-path {table_path}: {path} exists and is not {what}; it is never replaced "
+                             "(choose another path)")
+    present = [p for p in (table_path, json_path) if os.path.lexists(p)]
+    if present and not overwrite:
+        raise ValueError(f"--table-path {table_path}: {' and '.join(present)} exist(s) already; --overwrite "
+                         "replaces them")
 
 
 # ----------------------------------------------------------------------------- the Q-table
@@ -223,13 +298,15 @@ class QTable:
         return out[inverse]
 
     def save(self, path: str) -> None:
-        """Rows by key (sorted keys compress to about half), Q-values as float32."""
+        """Rows by key (sorted keys compress to about half), Q-values as float32; written to a temporary file
+        beside `path` that then replaces it, so a kill or a full disk during the save leaves the old file whole."""
         rows = 1 + np.argsort(self.keys[1:self.size])
         os.makedirs(os.path.dirname(path) or ".", exist_ok=True)
-        np.savez_compressed(path, keys=self.keys[rows], q=self.q[:, rows].astype(np.float32),
-                            visits=self.visits[rows].astype(np.uint32),
-                            updates=self.updates[:, rows].astype(np.uint32),
-                            memory=self.memory, sensor_range=self.sensor_range)
+        with staged(path) as f:
+            np.savez_compressed(f, keys=self.keys[rows], q=self.q[:, rows].astype(np.float32),
+                                visits=self.visits[rows].astype(np.uint32),
+                                updates=self.updates[:, rows].astype(np.uint32),
+                                memory=self.memory, sensor_range=self.sensor_range)
 
     @classmethod
     def load(cls, path: str, memory: int | None = None, sensor_range: int | None = None) -> QTable:
@@ -365,7 +442,7 @@ def say(bar: tqdm | None, line: str) -> None:
 def play(core: gridworld.GridWorldCore, table: QTable, encoder: Encoder, rng: np.random.Generator,
          episodes: int, heuristic: bool = True, learner: Learner | None = None, source=None,
          log_every: int = 0, time_limit: float = 0.0, bar: tqdm | None = None,
-         record_paths: bool = False) -> dict[str, np.ndarray]:
+         record_paths: bool = False, stop=None) -> dict[str, np.ndarray]:
     """Run `episodes` episodes on the core's worlds, new ones starting as others end, acting
     with the table (ε-greedy and learning with a learner, greedy without). `source(k)` gives
     the scenarios of k new episodes (fewer leaves worlds idle; None lets the core draw maps).
@@ -373,7 +450,7 @@ def play(core: gridworld.GridWorldCore, table: QTable, encoder: Encoder, rng: np
     episode numbers in the order they ended, and `finished`, how many ended (fewer than
     `episodes` when `time_limit` seconds ran out first); with record_paths also `paths`, per
     episode the (T+1, 1, 2) [row, col] cells of its agent from the start. `bar` counts the
-    episodes that end."""
+    episodes that end. `stop()`, when given and true, ends the run early as the time limit does."""
     B, learn = core.B, learner is not None
     history = np.zeros((B, encoder.memory), np.int64)
     rows, actions = np.zeros(B, np.int64), np.zeros(B, np.int64)
@@ -428,7 +505,8 @@ def play(core: gridworld.GridWorldCore, table: QTable, encoder: Encoder, rng: np
 
     idle[:] = True
     begin(np.arange(B))
-    while finished < episodes and not (time_limit and time.perf_counter() - t0 > time_limit):
+    while (finished < episodes and not (time_limit and time.perf_counter() - t0 > time_limit)
+           and not (stop and stop())):
         use = actions == HEURISTIC
         moves = actions.copy()
         if use.any():
@@ -576,6 +654,12 @@ def main(args: Args) -> dict:
                                ("--number-obstacles", args.number_obstacles, 0)):
         if value < least:
             raise ValueError(f"{flag} must be >= {least}, got {value}")
+    for flag, value in (("--alpha", args.alpha), ("--gamma", args.gamma), ("--lam", args.lam),
+                        ("--time-limit", args.time_limit)):
+        if not math.isfinite(value):
+            raise ValueError(f"{flag} must be a finite number, got {value}")
+    if args.size > gridworld.MAX_MAP_SIDE:
+        raise ValueError(f"--size must be at most {gridworld.MAX_MAP_SIDE} (gridworld.MAX_MAP_SIDE), got {args.size}")
     min_size = args.size if args.min_size is None else args.min_size
     if not 2 <= min_size <= args.size:
         raise ValueError(f"--min-size must be in 2..{args.size} (--size), got {min_size}")
@@ -591,6 +675,7 @@ def main(args: Args) -> dict:
     table_path = args.table_path or os.path.join("runs", run_name, "tabular_q.npz")
     if not table_path.endswith(".npz") or os.path.isdir(table_path):
         raise ValueError(f"--table-path {table_path}: must name an .npz file (its .json goes beside it)")
+    check_table_path(table_path, args.overwrite)
     parent = os.path.dirname(os.path.abspath(table_path))
     while not os.path.exists(parent):  # the folders save() would create: can the nearest existing one take them?
         parent = os.path.dirname(parent)
@@ -616,38 +701,58 @@ def main(args: Args) -> dict:
     made = provenance()
     print(f"{run_name}: {args.algorithm}, {args.episodes:,} episodes on {args.num_worlds} worlds, maps "
           f"{min_size}-{args.size} with up to {args.number_obstacles} obstacle(s) -> {table_path}", flush=True)
-    start = time.perf_counter()
-    with tqdm(total=args.episodes, desc=args.algorithm, unit="episode",
-              disable=args.quiet or not sys.stdout.isatty()) as bar:
-        out = play(core, table, encoder, rng, args.episodes, args.heuristic, learner, source, args.log_every,
-                   args.time_limit, bar)
-    seconds = time.perf_counter() - start
-    done = out["order"][:int(out["finished"])]
-    rho = out["rho"][done]  # in the order the episodes ended
-    n = len(rho) // args.curve_window * args.curve_window
-    info = dict(args=asdict(args), run_name=run_name, episodes=len(done), states=table.size - 1,
-                steps=int(out["steps"][done].sum()), wall_seconds=round(seconds, 1),
-                episodes_per_second=round(len(done) / seconds, 1),
-                steps_per_second=round(out["steps"][done].sum() / seconds, 1),
-                machine=f"{made['cpu'] or 'CPU'}, {made['cores']} cores (one used), numpy {np.__version__}",
-                **made,
-                final_rho=round(float(rho[-args.curve_window:].mean()), 4),
-                completion=round(float(out["completed"][done].mean()), 4),
-                curve_window=args.curve_window,
-                curve_rho=[round(float(x), 4) for x in rho[:n].reshape(-1, args.curve_window).mean(1)])
+    stop = {"signal": 0}  # Ctrl-C and SIGTERM end training as the time limit does: the table so far is saved
+    catch = threading.current_thread() is threading.main_thread()
+    previous = {s: signal.signal(s, lambda n, _: stop.update(signal=n)) for s in (signal.SIGINT, signal.SIGTERM)} \
+        if catch else {}
     try:
-        table.save(table_path)
-        with open(os.path.splitext(table_path)[0] + ".json", "w") as f:
-            json.dump(info, f, indent=1)
-    except OSError as e:
-        raise ValueError(f"--table-path {table_path}: cannot write ({e.strerror})") from None
+        start = time.perf_counter()
+        with tqdm(total=args.episodes, desc=args.algorithm, unit="episode",
+                  disable=args.quiet or not sys.stdout.isatty()) as bar:
+            out = play(core, table, encoder, rng, args.episodes, args.heuristic, learner, source, args.log_every,
+                       args.time_limit, bar, stop=lambda: stop["signal"])
+        seconds = time.perf_counter() - start
+        done = out["order"][:int(out["finished"])]
+        if stop["signal"] and not len(done):
+            print(f"error: interrupted by {signal.Signals(stop['signal']).name} before any episode ended; nothing "
+                  "written", file=sys.stderr)
+            raise SystemExit(128 + stop["signal"])
+        rho = out["rho"][done]  # in the order the episodes ended
+        n = len(rho) // args.curve_window * args.curve_window
+        info = dict(args=asdict(args), run_name=run_name, episodes=len(done), states=table.size - 1,
+                    steps=int(out["steps"][done].sum()), wall_seconds=round(seconds, 1),
+                    episodes_per_second=round(len(done) / seconds, 1),
+                    steps_per_second=round(out["steps"][done].sum() / seconds, 1),
+                    machine=f"{made['cpu'] or 'CPU'}, {made['cores']} cores (one used), numpy {np.__version__}",
+                    **made,
+                    final_rho=round(float(rho[-args.curve_window:].mean()), 4) if len(rho) else None,
+                    completion=round(float(out["completed"][done].mean()), 4) if len(done) else None,
+                    curve_window=args.curve_window,
+                    curve_rho=[round(float(x), 4) for x in rho[:n].reshape(-1, args.curve_window).mean(1)])
+        if stop["signal"]:
+            info["interrupted"] = signal.Signals(stop["signal"]).name
+        json_path = os.path.splitext(table_path)[0] + ".json"
+        try:  # both staged: the table replaces the old one, then the .json does, each in one os.replace
+            os.makedirs(os.path.dirname(json_path) or ".", exist_ok=True)
+            with staged(json_path, "w") as f:
+                json.dump(info, f, indent=1)
+                f.flush()
+                table.save(table_path)
+        except OSError as e:
+            raise ValueError(f"--table-path {table_path}: cannot write ({e.strerror}); any earlier table there "
+                             "is as it was") from None
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
     print(f"{args.algorithm}: {len(done):,} episodes in {seconds:.1f} s ({info['episodes_per_second']:,} "
           f"episodes/s), {info['states']:,} states, final rho {info['final_rho']} -> {table_path}")
+    if stop["signal"]:  # the shell's convention: 130 for Ctrl-C, 143 for SIGTERM
+        print(f"error: interrupted by {signal.Signals(stop['signal']).name} after {len(done):,} of "
+              f"{args.episodes:,} episodes; the table so far is saved -> {table_path}", file=sys.stderr)
+        raise SystemExit(128 + stop["signal"])
     return info
 
 
 if __name__ == "__main__":
-    try:
+    with gridworld.cli_errors():
         main(gridworld.cli(Args))
-    except ValueError as e:
-        raise SystemExit(f"error: {e}") from None

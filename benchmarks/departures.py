@@ -48,7 +48,7 @@ FAMILIES = ("random", *gw.STRUCTURED_FAMILIES)
 
 @dataclass
 class Args:
-    model: str = "models/rainbow_cpp.pt"
+    model: str = os.path.join(ROOT, "models", "rainbow_cpp.pt")
     """the hinted rainbow_cpp export that walks the maps and is trained"""
     data: str = "runs/departures.npz"
     """where the labelled states are saved, or read from when the file exists"""
@@ -236,13 +236,16 @@ def train(q: torch.nn.Module, data: dict, rows: np.ndarray, args: Args, rng: np.
 
 
 def line(name: str, s: dict) -> str:
+    def num(value, digits: int) -> str:  # None where a share has no states (a test set without departures): "-"
+        return "-" if value is None else f"{value:.{digits}f}"
+
     a = s["all"]
-    fam = " ".join(f"{f} {s[f]['departure_recall']:.2f}/{s[f]['false_departures']:.3f}" for f in FAMILIES
+    fam = " ".join(f"{f} {num(s[f]['departure_recall'], 2)}/{num(s[f]['false_departures'], 3)}" for f in FAMILIES
                    if s[f]["departures"])
-    saved = f", saving recall {a['saving_recall']:.3f}" if "saving_recall" in a else ""
-    precision = "-" if a["precision"] is None else f"{a['precision']:.3f}"
-    return (f"{name}: agreement {a['agreement']:.4f}, departure recall {a['departure_recall']:.3f}{saved}, false "
-            f"departures {a['false_departures']:.4f}, precision {precision}  (per family recall/false: {fam})")
+    saved = f", saving recall {num(a['saving_recall'], 3)}" if "saving_recall" in a else ""
+    return (f"{name}: agreement {num(a['agreement'], 4)}, departure recall {num(a['departure_recall'], 3)}{saved}, "
+            f"false departures {num(a['false_departures'], 4)}, precision {num(a['precision'], 3)}  (per family "
+            f"recall/false: {fam})")
 
 
 def main(args: Args) -> None:
@@ -307,7 +310,8 @@ def main(args: Args) -> None:
 
 
 if __name__ == "__main__":
-    try:
-        main(gw.cli(Args))
-    except (ValueError, OSError) as e:
-        sys.exit(f"error: {e}")
+    with gw.cli_errors():  # a ValueError or Ctrl-C: one line, no traceback
+        try:
+            main(gw.cli(Args))
+        except OSError as e:
+            sys.exit(f"error: {e}")

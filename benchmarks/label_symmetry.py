@@ -92,6 +92,11 @@ def labels(scenarios: list[gw.Scenario]) -> tuple[np.ndarray, np.ndarray]:
 
 
 def main(args: Args) -> None:
+    for flag, value in (("--worlds", args.worlds), ("--every", args.every)):
+        if value < 1:
+            raise ValueError(f"{flag} must be >= 1, got {value}")
+    if not 2 <= args.min_size <= args.size <= gw.MAX_MAP_SIDE:
+        raise ValueError(f"need 2 <= --min-size <= --size <= {gw.MAX_MAP_SIDE}, got {args.min_size} and {args.size}")
     pin(args.cpu)
     tick = time.perf_counter()
     scenarios, family = states(args)
@@ -127,4 +132,5 @@ def main(args: Args) -> None:
 
 
 if __name__ == "__main__":
-    main(gw.cli(Args))
+    with gw.cli_errors():  # a bad flag or Ctrl-C: one line, no traceback
+        main(gw.cli(Args))

@@ -13,6 +13,7 @@ prints one JSON line per trainer and the speed-up.
 from __future__ import annotations
 
 import collections
+import contextlib
 import json
 import os
 import sys
@@ -131,20 +132,22 @@ def batched_trainer(args: Args, workdir: str) -> float:
                                hidden=args.hidden, replay_ratio=args.replay_ratio,
                                batch_size=args.trainer_batch_size or args.batch_size, num_envs=args.num_envs,
                                buffer_size=64 * args.num_envs * 64, eval_every=0, save_every=0,
-                               run_name=os.path.join(workdir, "runs"), quiet=True,
-                               export=os.path.join(workdir, "model.pt"))
+                               run_name=f"bench_{total}", quiet=True,  # a folder name: runs/ under workdir
+                               export=os.path.join(workdir, f"model_{total}.pt"))
         t0 = time.perf_counter()
-        rainbow_cpp.main(run)
+        with contextlib.chdir(workdir):  # the trainer writes runs/RUN_NAME under the working folder
+            rainbow_cpp.main(run)
         wall.append(time.perf_counter() - t0)
     return args.steps / (wall[1] - wall[0])
 
 
 if __name__ == "__main__":
-    args = gridworld.cli(Args)
-    torch.manual_seed(0)
-    with tempfile.TemporaryDirectory() as workdir:
-        batched = batched_trainer(args, workdir)
-    plain = plain_loop(args)
+    with gridworld.cli_errors():  # a ValueError (a trainer's flag check) or Ctrl-C: one line, no traceback
+        args = gridworld.cli(Args)
+        torch.manual_seed(0)
+        with tempfile.TemporaryDirectory() as workdir:
+            batched = batched_trainer(args, workdir)
+        plain = plain_loop(args)
     common = dict(hidden=args.hidden, replay_ratio=args.replay_ratio, batch_size=args.batch_size,
                   size=args.size, steps=args.steps, torch_threads=torch.get_num_threads())
     print(json.dumps({"trainer": "plain single-env loop", "env_steps_per_s": round(plain, 1), **common}))

@@ -104,7 +104,8 @@ def main(args: Args) -> None:
 
 
 if __name__ == "__main__":
-    try:
-        main(gw.cli(Args))
-    except (ValueError, OSError) as e:
-        sys.exit(f"error: {e}")
+    with gw.cli_errors():  # a ValueError or Ctrl-C: one line, no traceback
+        try:
+            main(gw.cli(Args))
+        except OSError as e:
+            sys.exit(f"error: {e}")

@@ -25,7 +25,8 @@ from dataclasses import dataclass  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, ROOT)
 
 import gridworld as gw  # noqa: E402
 
@@ -42,7 +43,7 @@ class Args:
     """fraction of each map's free cells walked before labelling"""
     seconds: float = 3.0
     """timing per cell of the table, after the first call"""
-    policy: str = "models/rainbow_cpp.pt"
+    policy: str = os.path.join(ROOT, "models", "rainbow_cpp.pt")
     """a rainbow_cpp export whose policy-rollout is timed too ("" : none)"""
     cpu: int = -1
     """the CPU to pin to (-1: the first one this process may use)"""
@@ -113,4 +114,5 @@ def main(args: Args) -> None:
 
 
 if __name__ == "__main__":
-    main(gw.cli(Args))
+    with gw.cli_errors():  # a bad flag or Ctrl-C: one line, no traceback
+        main(gw.cli(Args))

@@ -32,7 +32,7 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 
 import classical_cpp as cc  # noqa: E402
-from gridworld import Scenario, cli  # noqa: E402
+from gridworld import Scenario, cli, cli_errors  # noqa: E402
 
 
 @dataclass
@@ -67,6 +67,8 @@ def shares(scenario: Scenario, paths: list[np.ndarray]) -> tuple[float, float, f
 def main(args: Args) -> None:
     if args.agents < 2:
         sys.exit("error: --agents must be at least 2 (a team)")
+    if args.every < 1 or args.structured_every < 0:
+        sys.exit(f"error: need --every >= 1 and --structured-every >= 0, got {args.every} and {args.structured_every}")
     pin(args.cpu)
     tick = time.perf_counter()
     if args.structured_every > 0:
@@ -103,4 +105,5 @@ def main(args: Args) -> None:
 
 
 if __name__ == "__main__":
-    main(cli(Args))
+    with cli_errors():  # a bad flag or Ctrl-C: one line, no traceback
+        main(cli(Args))

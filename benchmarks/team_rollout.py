@@ -65,4 +65,5 @@ def main(args: Args) -> dict:
 
 
 if __name__ == "__main__":
-    main(gridworld.cli(Args))
+    with gridworld.cli_errors():  # a bad flag or Ctrl-C: one line, no traceback
+        main(gridworld.cli(Args))

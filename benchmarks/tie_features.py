@@ -177,6 +177,13 @@ def fit(x: np.ndarray, mask: np.ndarray, cost: np.ndarray, iterations: int) -> n
 
 
 def main(args: Args) -> None:
+    for flag, value in (("--worlds", args.worlds), ("--batches", args.batches), ("--iterations", args.iterations)):
+        if value < 1:
+            raise ValueError(f"{flag} must be >= 1, got {value}")
+    if not 2 <= args.min_size <= args.size <= gw.MAX_MAP_SIDE:
+        raise ValueError(f"need 2 <= --min-size <= --size <= {gw.MAX_MAP_SIDE}, got {args.min_size} and {args.size}")
+    if args.symmetries not in (1, 2, 4, 8):
+        raise ValueError(f"--symmetries must be 1, 2, 4 or 8, got {args.symmetries}")
     pin(args.cpu)
     torch.set_num_threads(1)
     torch.manual_seed(0)
@@ -205,4 +212,5 @@ def main(args: Args) -> None:
 
 
 if __name__ == "__main__":
-    main(gw.cli(Args))
+    with gw.cli_errors():  # a bad flag or Ctrl-C: one line, no traceback
+        main(gw.cli(Args))

@@ -24,6 +24,7 @@ measure it) plus trainer ("rainbow_cpp" or "sb3_dqn"), amp and compile.
 from __future__ import annotations
 
 import collections
+import contextlib
 import json
 import os
 import sys
@@ -69,7 +70,7 @@ class Args:
     sb3_steps: int = 2000
     """env steps of SB3 timed after its learning starts"""
     quick: bool = False
-    """a smoke test: a few steps and repeats"""
+    """a smoke test: at most 320 steps (fig6.8 too) and 3 repeats; smaller --steps, --sb3-steps, --repeats stay"""
     json: str | None = None
     """write the rows here"""
 
@@ -153,12 +154,14 @@ def ms_per_update(run: rc.Args, replay: rc.Replay, device: torch.device, repeats
 def env_steps_per_s(run: rc.Args, stage_file: str, steps: int, learning_starts: int, workdir: str) -> float:
     """rainbow_cpp.main over `steps` steps after learning starts: two runs, the second `steps` longer."""
     wall = []
+    here = tempfile.mkdtemp(dir=workdir)  # a fresh folder per measurement: runs/ and the exports never meet old ones
     for total in (learning_starts, learning_starts + steps):
         args = rc.Args(**{**asdict(run), "stages": stage_file, "total_steps": total, "learning_starts": learning_starts,
                           "eval_every": 0, "save_every": 0, "quiet": True,
-                          "run_name": os.path.join(workdir, "runs"), "export": os.path.join(workdir, "model.pt")})
+                          "run_name": f"bench_{total}", "export": os.path.join(here, f"model_{total}.pt")})
         start = time.perf_counter()
-        rc.main(args)
+        with contextlib.chdir(here):  # the trainer writes runs/RUN_NAME under the working folder
+            rc.main(args)
         wall.append(time.perf_counter() - start)
     return steps / max(wall[1] - wall[0], 1e-9)
 
@@ -270,8 +273,8 @@ def targets(rows: list[dict]) -> list[str]:
 
 
 def main(args: Args) -> list[dict]:
-    if args.quick:
-        args.steps, args.sb3_steps, args.repeats = 320, 320, 3
+    if args.quick:  # at most these; smaller values given with --quick stay (the tests run a few steps)
+        args.steps, args.sb3_steps, args.repeats = min(args.steps, 320), min(args.sb3_steps, 320), min(args.repeats, 3)
     config = stage(args)
     rows: list[dict] = []
     threads_before = torch.get_num_threads()
@@ -293,7 +296,7 @@ def main(args: Args) -> list[dict]:
                 fig = network == "fig6.8"
                 for batch in args.batch_sizes:
                     ms = ms_per_update(rc.Args(**{**asdict(run), "batch_size": batch}), replay, device,
-                                       max(4, args.repeats // 4) if fig else args.repeats)
+                                       max(4, args.repeats // 4) if fig and not args.quick else args.repeats)
                     add(row(network, hidden, batch, threads, device.type, ms_per_update=ms))
                 if args.variants and network == "compact" and threads == 1:
                     for flag in ("amp", "compile"):
@@ -304,7 +307,7 @@ def main(args: Args) -> list[dict]:
                 for ratio in args.replay_ratios:
                     run_loop = rc.Args(**{**asdict(run), "replay_ratio": ratio, "threads": threads,
                                           "cuda": device.type == "cuda"})
-                    steps = max(400, args.steps // 5) if fig else args.steps
+                    steps = max(400, args.steps // 5) if fig and not args.quick else args.steps
                     sps = env_steps_per_s(run_loop, stage_file, steps, args.learning_starts, workdir)
                     add(row(network, hidden, 32, threads, device.type, replay_ratio=ratio, env_steps_per_s=sps))
         if args.sb3:
@@ -337,4 +340,5 @@ def main(args: Args) -> list[dict]:
 
 
 if __name__ == "__main__":
-    main(gridworld.cli(Args))
+    with gridworld.cli_errors():  # a ValueError or Ctrl-C: one line, no traceback
+        main(gridworld.cli(Args))
