@@ -1,6 +1,6 @@
 """Every benchmark runs: each script of benchmarks/ for a few steps through its own small flags, as a subprocess in
-a temporary folder, so that a broken benchmark fails the build (issue 44). recipe_speed.py and learning_rate.py
-have their own tests (they train the recipe); cpu.py is the pinning helper the others import.
+a temporary folder, so that a broken benchmark fails the build (issue 44). cpu.py is the pinning helper the others
+import.
 """
 from __future__ import annotations
 
@@ -13,10 +13,13 @@ import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
 MODEL = str(ROOT / "models" / "rainbow_cpp.pt")
-TESTED_ELSEWHERE = {"recipe_speed.py", "learning_rate.py", "cpu.py"}
+TESTED_ELSEWHERE = {"cpu.py"}
 TINY = {  # each ~2-15 s on one core; --cpu -1: the first CPU this process may use (CPU 0 may not be one)
     "departures.py": ["--data", "d.npz", "--states", "64", "--worlds", "2", "--size", "6", "--min-size", "5",
                       "--epochs", "1", "--model", MODEL, "--cpu", "-1"],
+    "learning_rate.py": ["--rates", "5e-4", "--stage-steps-scale", "0.0001", "--eval-every", "64", "--eval-maps", "2",
+                         "--out", "lr.json"],
+    "recipe_speed.py": ["--steps", "32", "--learning-starts", "32", "--buffer-size", "1024"],
     "label_symmetry.py": ["--worlds", "1", "--size", "6", "--min-size", "5", "--cpu", "-1"],
     "rainbow_sps.py": ["--steps", "16", "--learning-starts", "32", "--hidden", "16", "--size", "6", "--num-envs", "2"],
     "rollout_agreement.py": ["--worlds", "1", "--size", "6", "--min-size", "5", "--model", MODEL, "--cpu", "-1"],
