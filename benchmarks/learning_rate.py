@@ -43,7 +43,14 @@ class Args:
     seed: int = 1
     """the trainer's seed"""
     out: str = "runs/learning_rate.json"
-    """where the results go (refused if the file exists: choose another path)"""
+    """where the results go, each rate as soon as it is done; a file there from the same settings is continued (its
+    rates are kept and not rerun), one from other settings is refused"""
+
+
+def rate_entry(run_dir: str, wall_seconds: float) -> dict:
+    """One rate's figures from its run's TensorBoard events."""
+    return {**{tag.split("/")[1]: scalars(run_dir, tag) for tag in TAGS},
+            "q_values": scalars(run_dir, "losses/q_values")[-1:], "wall_seconds": round(wall_seconds)}
 
 
 def scalars(run_dir: str, tag: str) -> list[tuple[int, float]]:
@@ -53,18 +60,30 @@ def scalars(run_dir: str, tag: str) -> list[tuple[int, float]]:
 
 
 def main(a: Args) -> None:
-    if os.path.exists(a.out):
-        raise ValueError(f"--out {a.out} exists: choose another path")
     if not a.rates or any(not 0 < r < 1 for r in a.rates) or not 0 < a.stage_steps_scale <= 1 or a.eval_every < 16:
         raise ValueError("--rates in (0, 1), --stage-steps-scale in (0, 1] and --eval-every >= 16")
     total = int(1_000_000 * a.stage_steps_scale) + int(2_000_000 * a.stage_steps_scale)
     results = {"flags": RECIPE, "stage_steps_scale": a.stage_steps_scale, "total_steps": total, "seed": a.seed,
-               "torch": torch.__version__, "rates": {}}
+               "eval_every": a.eval_every, "eval_maps": a.eval_maps, "torch": torch.__version__, "rates": {}}
+    if os.path.exists(a.out):
+        try:
+            with open(a.out) as f:
+                before = json.load(f)
+            same = all(before[k] == results[k] for k in ("flags", "stage_steps_scale", "total_steps", "seed",
+                                                         "eval_every", "eval_maps"))
+        except (OSError, ValueError, KeyError, TypeError):
+            same = False
+        if not same:
+            raise ValueError(f"--out {a.out} holds another sweep (or no sweep): choose another path")
+        results["rates"] = before["rates"]
+    out = os.path.abspath(a.out)
     here = os.getcwd()
     with tempfile.TemporaryDirectory() as workdir:
         os.chdir(workdir)
         try:
             for rate in a.rates:
+                if f"{rate:g}" in results["rates"]:
+                    continue
                 name = f"lr{rate:g}"
                 args = tyro.cli(rc.Args, args=[*RECIPE, "--learning-rate", str(rate), "--stage-steps-scale",
                                                str(a.stage_steps_scale), "--total-steps", str(total), "--eval-every",
@@ -73,16 +92,20 @@ def main(a: Args) -> None:
                 start = time.time()
                 rc.main(args)
                 run_dir = os.path.join("runs", name)
-                results["rates"][f"{rate:g}"] = {
-                    **{tag.split("/")[1]: scalars(run_dir, tag) for tag in TAGS},
-                    "q_values": scalars(run_dir, "losses/q_values")[-1:], "wall_seconds": round(time.time() - start)}
+                results["rates"][f"{rate:g}"] = rate_entry(run_dir, time.time() - start)
+                write(out, results)
                 print(f"learning rate {rate:g}: eval overlap {results['rates'][f'{rate:g}']['overlap']}", flush=True)
         finally:
             os.chdir(here)
-    os.makedirs(os.path.dirname(os.path.abspath(a.out)), exist_ok=True)
-    with open(a.out, "w") as f:
-        json.dump(results, f, indent=1)
     print(f"wrote {a.out}")
+
+
+def write(path: str, results: dict) -> None:
+    """The results so far, replacing the file in one rename."""
+    os.makedirs(os.path.dirname(path), exist_ok=True)
+    with open(path + ".tmp", "w") as f:
+        json.dump(results, f, indent=1)
+    os.replace(path + ".tmp", path)
 
 
 if __name__ == "__main__":
