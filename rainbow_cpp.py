@@ -235,8 +235,9 @@ class Args:
     """environment steps between checkpoints (0: only at the end)"""
     curve_every: int = 0
     """environment steps between points of the learning curve (0: none): the greedy policy with and without the
-    fallback on fixed held-out maps (every 5th cpp_eval map, every 14th structured_eval map), with the run's steps/s
-    and peak memory, appended to runs/RUN/curve.json and kept in the checkpoint (so a resumed run goes on with it)"""
+    fallback on fixed held-out maps (every 5th cpp_eval map, every 14th structured_eval map), with the run's steps/s,
+    peak memory and steps since it was last resumed (its replay memory restarted empty then), appended to
+    runs/RUN/curve.json and kept in the checkpoint (so a resumed run goes on with it)"""
     resume: bool = False
     """continue runs/RUN/checkpoint.pt (needs --run-name; the replay memory restarts empty)"""
     init_from: str | None = None
@@ -1709,6 +1710,7 @@ def main(args: Args) -> None:
             tick = time.time()
             point = {"step": global_step, "stage": stages[stage_index].name, "wall_seconds": round(tick - t0),
                      "sps": round((global_step - curve_clock[0]) / max(tick - curve_clock[1], 1e-9)),
+                     "steps_since_resume": global_step - replay_born,  # the replay memory restarted then
                      "peak_rss_mb": peak_memory_mb()}
             point |= curve_point(q, held_out, args)
             curve.append(point | {"eval_seconds": round(time.time() - tick)})

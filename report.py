@@ -1124,9 +1124,11 @@ def scale_lines(scale: dict | None, refs: dict | None) -> list[str]:
     rows = [[f"{p['step']:,}", p["stage"], f"{p['cpp_eval']['overlap']:.3f}", f"{100 * p['cpp_eval']['completion']:.1f}%",
              f"{100 * p['cpp_eval_alone']['completion']:.1f}%", str(p["cpp_eval_alone"]["outliers"]),
              f"{p['structured_eval']['overlap']:.3f}", f"{100 * p['structured_eval_alone']['completion']:.1f}%",
-             f"{p['cpp_eval']['fallback_share']:.3f}", str(p["sps"]), str(p["peak_rss_mb"])] for p in scale["curve"]]
+             f"{p['cpp_eval']['fallback_share']:.3f}", str(p["sps"]), str(p["peak_rss_mb"]),
+             recorded(p.get("steps_since_resume"), "{:,}")] for p in scale["curve"]]
     lines.append(table(["steps", "stage", "cpp_eval overlap", "completion", "alone: completion", "alone: outliers",
-                        "structured overlap", "alone: completion", "fallback share", "steps/s", "peak MiB"], rows))
+                        "structured overlap", "alone: completion", "fallback share", "steps/s", "peak MiB",
+                        "steps since a resume"], rows))
     lines += ["", f"![the scale run's learning curve]({FIGURES['rainbow_cpp_scale']})"]
     if refs is not None:
         names = [*SCALE_REFERENCES, "rainbow"]

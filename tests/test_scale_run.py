@@ -71,6 +71,7 @@ def test_curve_points_go_to_the_json_and_the_checkpoint_and_survive_a_resume(tmp
     rc.main(tiny(rc, total_steps=96, curve_every=32, resume=True))
     resumed = json.loads((tmp_path / "runs" / "t" / "curve.json").read_text())["curve"]
     assert [p["step"] for p in resumed] == [32, 64, 96] and resumed[:2] == curve
+    assert [p["steps_since_resume"] for p in resumed] == [32, 64, 32]  # the memory restarted at 64
 
 
 def test_a_resumed_run_refills_its_memory_before_learning_and_keeps_its_target(tmp_path, monkeypatch,
