@@ -422,7 +422,8 @@ def test_a_part_whose_model_is_not_trained_is_skipped(tmp_path, monkeypatch, cap
     assert "rainbow_marl: skipped" in capsys.readouterr().out
     shutil.copy(RESULTS / "classical_cpp.json", tmp_path / "classical_cpp.json")
     assert report.parts_to_collect(report.Collect(out=str(tmp_path), reuse=True)) == [
-        "team_rollout", "sensors", "rainbow_cpp", "tabular"]  # classical_cpp.json alone, structured and rollout in it
+        "team_rollout", "sensors", "rainbow_cpp", "tabular", "scale_references", "rainbow_cpp_scale"][
+        :None if (ROOT / report.MODELS["rainbow_cpp_scale"]).exists() else -1]  # classical_cpp.json alone
 
 
 # ----------------------------------------------------------------------------- collect, on tiny settings
@@ -462,10 +463,32 @@ def tiny(tmp_path, monkeypatch, small_report_maps):
         "machine": "a test machine", "curve_rho": [1.0]}))
     monkeypatch.setattr(report, "SENSOR_RANGES", (1, 3))
     rainbow = _tiny_model(rainbow_cpp, models / "rainbow_cpp.pt", {"heuristic_dead_ends": True})
+    small = {name: [gw.Scenario(s.obstacles, s.starts[:1], s.covered) for s in gw.load_dataset(
+        str(ROOT / "maps" / f"{name}.npz"))[:2]] for name in rainbow_cpp.CURVE_SLICES}
+    monkeypatch.setattr(rainbow_cpp, "curve_maps", lambda: small)
     monkeypatch.setattr(report, "MODELS", {
         "rainbow_cpp": rainbow, "sensors": rainbow,
-        "rainbow_marl": _tiny_model(rainbow_marl, models / "rainbow_marl.pt", {}), "tabular": str(table)})
+        "rainbow_marl": _tiny_model(rainbow_marl, models / "rainbow_marl.pt", {}), "tabular": str(table),
+        "scale_references": rainbow, "rainbow_cpp_scale": _tiny_scale_checkpoint(rainbow_cpp, models / "run.pt")})
     return tmp_path
+
+
+def _tiny_scale_checkpoint(module, path: Path) -> str:
+    """A training checkpoint as the scale run writes it, with one learning-curve point."""
+    import torch
+    q = module.build_network({"network": "compact", "frames": 3, "hidden": 16, "conv_width": 8, "scales": 3,
+                              "scale_factor": 3, "scale_view": 11}, 0.5)
+    row = {"maps": 2, "overlap": 0.1, "completion": 1.0, "outliers": 0}
+    point = {"step": 1000, "stage": "fi1", "wall_seconds": 5, "sps": 300, "peak_rss_mb": 500, "eval_seconds": 1,
+             "cpp_eval": {**row, "fallback_share": 0.0, "overlap_by_size": {"5": 0.1}},
+             "cpp_eval_alone": {**row, "overlap_by_size": {"5": 0.1}},
+             "structured_eval": {**row, "fallback_share": 0.0}, "structured_eval_alone": row}
+    args = dataclasses.asdict(module.Args(network="compact", learning_rate=5e-4, stage_steps_scale=0.333,
+                                          camera_stages=False, heuristic_dead_ends=False, heuristic_random_ties=True))
+    module.save_checkpoint(str(path), {"model": q.state_dict(), "optimizer": {}, "global_step": 1000, "stage": 0,
+                                       "wall": 5.0, "numpy_rng": {}, "torch_rng": torch.get_rng_state(), "args": args,
+                                       "script": "rainbow_cpp", "curve": [point], **q.network()})
+    return str(path)
 
 
 def test_all_on_tiny_settings_writes_into_out_only(tiny):
