@@ -1379,13 +1379,14 @@ def plot_scale(scale: dict, refs: dict | None, folder: str) -> list[str]:
         ax.plot(steps, [p[name]["overlap"] for p in scale["curve"]], "o-", color="black", label="scale run (+ fallback)")
         for ref, row in ((refs or {}).get(name) or {}).items():
             ax.axhline(row["overlap"], ls="--", color=colours.get(ref, "grey"), label=label.get(ref, ref))
-        ax.set(title=f"{name}: mean overlap with the fallback", xlabel="environment steps (M)", ylabel="mean overlap")
+        ax.set(title=f"{name}: mean overlap with the fallback", xlabel="environment steps (M)", ylabel="mean overlap",
+               xlim=(0, max(steps) * 1.05), ylim=(0, None))
         ax.legend(fontsize=8)
     for name in ("cpp_eval", "structured_eval"):
         axes[2].plot(steps, [100 * p[f"{name}_alone"]["completion"] for p in scale["curve"]], "o-", label=name)
     axes[2].axhline(99.3, ls=":", color="grey", label="dissertation: 99.3%")
     axes[2].set(title="completion without the fallback", xlabel="environment steps (M)", ylabel="% of maps",
-                ylim=(0, 101))
+                xlim=(0, max(steps) * 1.05), ylim=(0, 101))
     axes[2].legend(fontsize=8)
     return [_save(fig, folder, "rainbow_cpp_scale")]
 
