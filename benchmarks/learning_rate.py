@@ -11,6 +11,7 @@ eval/heuristic_overlap, eval/completion and eval/heuristic_share), and records t
 """
 from __future__ import annotations
 
+import datetime
 import json
 import os
 import sys
@@ -48,8 +49,8 @@ class Args:
 
 
 def rate_entry(run_dir: str, wall_seconds: float) -> dict:
-    """One rate's figures from its run's TensorBoard events."""
-    return {**{tag.split("/")[1]: scalars(run_dir, tag) for tag in TAGS},
+    """One rate's figures from its run's TensorBoard events, and the git commit of the code that trained it."""
+    return {"git_commit": rc.host()["git_commit"], **{tag.split("/")[1]: scalars(run_dir, tag) for tag in TAGS},
             "q_values": scalars(run_dir, "losses/q_values")[-1:], "wall_seconds": round(wall_seconds)}
 
 
@@ -64,7 +65,8 @@ def main(a: Args) -> None:
         raise ValueError("--rates in (0, 1), --stage-steps-scale in (0, 1] and --eval-every >= 16")
     total = int(1_000_000 * a.stage_steps_scale) + int(2_000_000 * a.stage_steps_scale)
     results = {"flags": RECIPE, "stage_steps_scale": a.stage_steps_scale, "total_steps": total, "seed": a.seed,
-               "eval_every": a.eval_every, "eval_maps": a.eval_maps, "torch": torch.__version__, "rates": {}}
+               "eval_every": a.eval_every, "eval_maps": a.eval_maps, "torch": torch.__version__, "rates": {},
+               "provenance": rc.host() | {"date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")}}
     if os.path.exists(a.out):
         try:
             with open(a.out) as f:
