@@ -171,8 +171,8 @@ def _finite_model(q, path: str, what: str):
 
 def _check_counts(args: Args) -> None:
     """The counts and sizes scenarios_from uses, each a one-line error naming its flag."""
-    for name, value in vars(args).items():
-        if isinstance(value, float) and not math.isfinite(value):
+    for name, value in vars(args).items():  # --hint-bonus inf is meaningful: the hint wherever it moves
+        if isinstance(value, float) and not math.isfinite(value) and not (name == "hint_bonus" and value == math.inf):
             raise ValueError(f"--{name.replace('_', '-')} must be a finite number, got {value}")
     for flag, value, least in (("--agents", args.agents, 1), ("--every", args.every, 1), ("--limit", args.limit, 0),
                                ("--min-size", args.min_size, 0), ("--max-size", args.max_size, 0),

@@ -1132,7 +1132,8 @@ def start_run(args: Args, n_stages: int) -> tuple:
         args = with_network(args, None if warm is None else network_of(warm, args.init_from), args.init_from)
     outside = args.export and os.path.relpath(os.path.abspath(args.export), os.path.abspath(run_dir)).startswith("..")
     before = [p for p in (args.export, os.path.splitext(args.export or "")[0] + ".json") if outside and os.path.isfile(p)]
-    if before and not args.overwrite:  # a run's own folder is its own; anything else that is there stays
+    if before and not args.overwrite and not (args.resume and exported_by(args.export, run_name)):
+        # a run's own folder and its own export (when resumed) are its own; anything else that is there stays
         raise ValueError(f"--export {args.export}: {before[0]} is there already; --overwrite replaces it")
     args = replace(args, run_name=run_name, export=args.export or os.path.join(run_dir, f"{SCRIPT}.pt"))
     device = torch.device("cuda" if args.cuda and torch.cuda.is_available() else "cpu")
@@ -1167,6 +1168,15 @@ def start_run(args: Args, n_stages: int) -> tuple:
         q.compile()
         target.compile()
     return args, run_dir, q, target, optimizer, rng, progress, parent
+
+
+def exported_by(path: str, run_name: str) -> bool:
+    """Whether the export at `path` was written by the run `run_name` (its JSON says so)."""
+    try:
+        with open(os.path.splitext(path)[0] + ".json") as f:
+            return json.load(f)["args"]["run_name"] == run_name
+    except (OSError, ValueError, KeyError, TypeError):
+        return False
 
 
 def hinted(weight: torch.Tensor, fresh: torch.Tensor) -> torch.Tensor:

@@ -161,7 +161,7 @@ def test_a_hinted_run_exports_a_model_that_evaluates(tmp_path, monkeypatch, rest
     # a resume keeps the hint without the flag; resuming a hint-free checkpoint with --hint is refused
     rc.main(replace(tiny(tmp_path, total_steps=260), resume=True))
     assert json.loads((tmp_path / "m.json").read_text())["network"]["hint"] is True
-    rc.main(tiny(tmp_path, run_name="plain"))
+    rc.main(tiny(tmp_path, run_name="plain", overwrite=True))  # a new run over the first run's export
     with pytest.raises(ValueError, match="--hint contradicts .*no hint input"):
         rc.main(replace(tiny(tmp_path, run_name="plain", total_steps=260), resume=True, hint=True))
 

@@ -171,7 +171,7 @@ def test_heuristic_teacher_is_the_default_run(tmp_path, monkeypatch, restore_sig
     (the code before --teacher gave the same weights too: checked by hand on a fixed-seed run)."""
     monkeypatch.chdir(tmp_path)
     rc.main(tiny(tmp_path, run_name="a"))
-    rc.main(tiny(tmp_path, run_name="b", teacher="heuristic", label_fraction=0.25))
+    rc.main(tiny(tmp_path, run_name="b", teacher="heuristic", label_fraction=0.25, overwrite=True))
     assert weights_hash(tmp_path, "a") == weights_hash(tmp_path, "b")
 
 

@@ -44,7 +44,7 @@ SHARED = [
     "world_paths", "write_episode_video",
     "save_checkpoint", "write_json", "export", "read_model", "network_of", "policy_from", "load_policy",
     "load_checkpoint", "check_flags", "run_name_of", "with_network", "observed", "lineage", "host", "seed_everything",
-    "start_run", "hinted", "save_run", "lock_run", "stop_signals", "peak_memory_mb", "progress_bar", "reason",
+    "start_run", "exported_by", "hinted", "save_run", "lock_run", "stop_signals", "peak_memory_mb", "progress_bar", "reason",
 ]
 # the Args fields that the shared code reads, equal in both (flag, default and docstring)
 SHARED_FLAGS = ["exp_name", "seed", "run_name", "threads", "cuda", "torch_deterministic", "compile", "amp", "quiet",
