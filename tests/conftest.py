@@ -78,3 +78,13 @@ def one_line_error(result, *words) -> str:
     for w in words:
         assert w in err, err
     return err
+
+
+def tiny_trainer_args(t, **kw):
+    """A trainer's Args (rainbow_cpp or rainbow_marl module `t`) for a run of a few dozen steps of a tiny compact
+    network in runs/t, on the CPU, writing nothing but its run folder."""
+    base = dict(run_name="t", total_steps=32, num_envs=2, learning_starts=16, buffer_size=2000, hidden=16,
+                eval_every=0, save_every=0, quiet=True, cuda=False, network="compact", conv_width=8)
+    if t.SCRIPT == "rainbow_marl":
+        base["init_from"] = ""
+    return t.Args(**{**base, **kw})

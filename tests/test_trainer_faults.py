@@ -13,19 +13,12 @@ import os
 
 import pytest
 import torch
+from conftest import tiny_trainer_args as tiny
 
 import rainbow_cpp as rc
 import rainbow_marl as rm
 
 TRAINERS = {"rainbow_cpp": rc, "rainbow_marl": rm}
-
-
-def tiny(t, **kw):
-    base = dict(run_name="t", total_steps=32, num_envs=2, learning_starts=16, buffer_size=2000, hidden=16,
-                eval_every=0, save_every=0, quiet=True, cuda=False, network="compact", conv_width=8)
-    if t is rm:
-        base["init_from"] = ""
-    return t.Args(**{**base, **kw})
 
 
 def digest(path) -> str:
