@@ -32,7 +32,6 @@ import json
 import math
 import os
 import sys
-import tempfile
 import time
 from collections import deque
 from dataclasses import dataclass
@@ -845,7 +844,8 @@ class Args:
     quiet: bool = False
     """no progress bar"""
     overwrite: bool = False
-    """let --report replace an existing OUT/classical_cpp.json (the committed results/classical_cpp.json by default)"""
+    """let --out (or --report's OUT/classical_cpp.json, the committed results/classical_cpp.json by default) replace
+    a file that is there already"""
 
 
 def load_scenarios(args: Args) -> list[Scenario]:
@@ -1160,46 +1160,14 @@ def structured_table(structured: dict) -> str:
     return "\n".join(lines)
 
 
-def write_json(path: str, data: dict) -> str:
-    """Write `data` to `path` through a temporary file in the same folder, so `path` is never half-written."""
-    folder = os.path.dirname(os.path.abspath(path))
-    try:
-        os.makedirs(folder, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=folder, prefix=".tmp-", suffix=".json")
-        umask = os.umask(0o022)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; the file gets what open() would have given it
-    except OSError as e:
-        raise ValueError(f"{path}: cannot write ({e.strerror})") from None
-    try:
-        with os.fdopen(fd, "w") as f:
-            json.dump(data, f, indent=1)
-        os.replace(tmp, path)
-    except BaseException as e:
-        os.remove(tmp)
-        if isinstance(e, OSError):
-            raise ValueError(f"{path}: cannot write ({e.strerror})") from None
-        raise
-    return path
-
-
 def report(per_size: int, out: str, quiet: bool = False, structured_per_band: int = STRUCTURED_PER_BAND) -> dict:
     """`compare` into OUT/classical_cpp.json, and its tables printed."""
     if os.path.exists(out) and not os.path.isdir(out):
         raise ValueError(f"--out {out}: not a folder")
     result = compare(per_size, quiet, structured_per_band)
-    write_json(os.path.join(out, "classical_cpp.json"), result)
+    gridworld.write_json(os.path.join(out, "classical_cpp.json"), result, "result", overwrite=True, flag="--out")
     print(tables(result))
     return result
-
-
-def _metrics_file(path: str) -> bool:
-    """Whether an existing --out holds JSON lines of metrics (an earlier --out), so that nothing else is overwritten."""
-    try:
-        with open(path) as f:
-            return "overlap" in json.loads(f.readline())
-    except (OSError, ValueError, TypeError, UnicodeDecodeError):
-        return False
 
 
 def main(args: Args) -> None:
@@ -1208,9 +1176,7 @@ def main(args: Args) -> None:
     if args.report:
         out = args.out or os.path.join(ROOT, "results")
         target = os.path.join(out, "classical_cpp.json")
-        if os.path.lexists(target) and not args.overwrite:  # checked before the minutes of planning
-            raise ValueError(f"--out {out} already holds classical_cpp.json: --overwrite replaces it (report.py "
-                             "collect asks the same)")
+        gridworld.check_output(target, "result", args.overwrite, "--out")  # before the minutes of planning
         report(args.per_size, out, args.quiet, args.structured_per_band)
         return
     if args.planner not in PLANNERS:
@@ -1219,17 +1185,14 @@ def main(args: Args) -> None:
         raise ValueError(f"unknown rollout base {args.rollout_base!r}; choose from {sorted(ROLLOUT_BASES)}")
     if args.out and not os.path.isdir(os.path.dirname(os.path.abspath(args.out))):
         raise ValueError(f"--out {args.out}: no such folder")
-    if args.out and os.path.exists(args.out) and not _metrics_file(args.out):
-        raise ValueError(f"--out {args.out}: exists and is not an earlier --out (JSON lines of metrics)")
+    if args.out:
+        gridworld.check_output(args.out, "result", args.overwrite, "--out")
     scenarios = load_scenarios(args)
     with tqdm(total=len(scenarios), desc=args.planner, unit="map", disable=args.quiet or not sys.stdout.isatty()) as bar:
         rows, ms = evaluate(args.planner, scenarios, bar, args.rollout_base)
     if args.out:
-        try:
-            with open(args.out, "w") as f:
-                f.write("".join(json.dumps({"size": list(s.obstacles.shape), **r}) + "\n" for s, r in zip(scenarios, rows)))
-        except OSError as e:
-            raise ValueError(f"--out {args.out}: cannot write ({e.strerror})") from None
+        with gridworld.staged_output(args.out, "result", overwrite=True, flag="--out") as tmp, open(tmp, "w") as f:
+            f.write("".join(json.dumps({"size": list(s.obstacles.shape), **r}) + "\n" for s, r in zip(scenarios, rows)))
     print(f"{args.planner}: {len(rows)} scenario(s), {args.agents} agent(s) each, "
           f"mean overlap {np.mean([r['overlap'] for r in rows]):.4f}, "
           f"mean time-save factor {np.mean([r['time_save'] for r in rows]):.4f}, "

@@ -144,6 +144,8 @@ class Args:
     """no progress bars (they are off anyway when stdout is not a terminal)"""
     out: str = "runs/eval"
     """output folder for episodes.csv, summary.json and, with --compare, compare.md / .json / .png"""
+    overwrite: bool = False
+    """replace the files of an earlier --out (or --video) outside runs/; under runs/ they are replaced anyway"""
 
 
 def _progress(quiet: bool, **kw) -> tqdm:
@@ -632,6 +634,8 @@ def main(args: Args) -> dict:
     if args.out and os.path.isdir(args.out) and not os.path.exists(os.path.join(args.out, "summary.json")) and any(
             os.path.isfile(os.path.join(args.out, name)) for name in os.listdir(args.out)):  # models/, results/, ...
         raise ValueError(f"--out {args.out}: a folder of other files; name a new folder or an earlier --out")
+    for name in ("episodes.csv", "summary.json") + (("compare.json", "compare.md", "compare.png") if compared else ()):
+        gridworld.check_output(os.path.join(args.out, name), "result", args.overwrite, "--out")  # before the minutes
     runners = {p: _runner(args if p == args.policy else replace(args, policy=p, checkpoint=None), p)
                for p in policies}  # every check and model load before anything runs
     episodes = scenarios_from(args)
@@ -675,7 +679,7 @@ def _write(args: Args, episodes: list[tuple[str, Scenario]], results: dict[str, 
             _write_pair, scenario=scenario, title=f"{name}, start {rows[0]['start']}",
             sides=[(paths[p][0], f"{shown}: overlap {results[p][0]['overlap']:.3f}, {results[p][0]['steps']} steps")
                    for p, shown in ((args.policy, label), (compared[0], compared[0]))])
-    _commit(files, args.quiet)
+    _commit(files, args.overwrite, args.quiet)
     print("\n".join(lines))
     print(f"wrote {args.out}" + (f" and {len(paths[args.policy])} videos in {args.video}" if args.video else ""))
     return summary
@@ -723,42 +727,28 @@ def _write_pair(path: str, scenario: Scenario, title: str, sides: list[tuple]) -
     plt.close(fig)
 
 
-def _commit(files: dict, quiet: bool) -> None:
-    """Write every file under a temporary name, then rename them all into place: a failure leaves none of them,
-    nor a folder made for them, behind."""
+def _commit(files: dict, overwrite: bool, quiet: bool) -> None:
+    """Write every file under a temporary name (gridworld's write rule: --overwrite to replace a file outside runs/),
+    then rename them all into place: a failure leaves none of them, nor a folder made for them, behind."""
+    for path in files:
+        gridworld.check_output(path, "result", overwrite, "--out")
     made = []
     for folder in dict.fromkeys(os.path.dirname(p) for p in files):
         while folder and not os.path.exists(folder) and folder not in made:
             made.append(folder)
             folder = os.path.dirname(folder)
-    temps = {}
     try:
-        for path, write in _progress(quiet, iterable=files.items(), total=len(files), desc="writing", unit="file"):
-            os.makedirs(os.path.dirname(path) or ".", exist_ok=True)
-            root, ext = os.path.splitext(path)
-            temps[path] = f"{root}.partial{ext}"  # the extension tells moviepy and matplotlib the format
-            write(temps[path])
-        for path, tmp in temps.items():
-            os.replace(tmp, path)
-    except BaseException as e:
-        for tmp in temps.values():
-            if os.path.exists(tmp):
-                os.remove(tmp)
+        with contextlib.ExitStack() as stack:
+            temps = {p: stack.enter_context(gridworld.staged_output(p, "result", overwrite, "--out")) for p in files}
+            for path, write in _progress(quiet, iterable=files.items(), total=len(files), desc="writing", unit="file"):
+                write(temps[path])
+    except BaseException:
         for folder in sorted(made, key=len, reverse=True):  # the deepest first, only if left empty
             with contextlib.suppress(OSError):
                 os.rmdir(folder)
-        if isinstance(e, OSError):
-            raise ValueError(f"{e.filename or 'output'}: cannot write ({e.strerror or e})") from None
         raise
 
 
 if __name__ == "__main__":
-    import report  # report.py imports this module, so only here: `python evaluate.py report ...` is report.py's CLI
-
     with gridworld.cli_errors():  # Ctrl-C or SIGTERM: one line, 130 / 143; --out is written only at the end, all at once
-        command = gridworld.cli(report.beside(Args(), "evaluate", "evaluate a policy on maps"), default=Args(),
-                                description=__doc__, config=report.CLI_CONFIG)
-        if isinstance(command, Args):
-            main(command)
-        else:
-            report.main(command)
+        main(gridworld.cli(Args, description=__doc__))

@@ -46,6 +46,7 @@ import numbers
 import os
 import signal
 import sys
+import tempfile
 import time
 import zipfile
 import zlib
@@ -387,6 +388,72 @@ def cli_errors(interrupted: str = "nothing written"):
         signal.signal(signal.SIGTERM, previous)
 
 
+# ----------------------------------------------------------------------------- the write rule of every script
+REPO = os.path.dirname(os.path.abspath(__file__))
+GUARDED = {"models": "model", "results": "result", "maps": "dataset"}  # committed folders: the one kind each holds
+UMASK = os.umask(0o022)
+os.umask(UMASK)
+
+
+def check_output(path: str, kind: str, overwrite: bool = False, flag: str = "--out") -> str:
+    """The rule every script's output obeys, checked before the work that produces it: inside models/, results/ or
+    maps/ of this repository only that folder's kind of file (a model, a result, a dataset); never a folder; a file
+    already there is replaced only with --overwrite (`overwrite`), except under runs/, the scripts' own scratch
+    space (gitignored). A refusal is a one-line ValueError naming `flag`. Returns `path`."""
+    real = os.path.realpath(path)
+
+    def inside(folder: str) -> bool:
+        return os.path.commonpath([real, os.path.join(REPO, folder)]) == os.path.join(REPO, folder)
+
+    for folder, holds in GUARDED.items():
+        if inside(folder) and kind != holds:
+            raise ValueError(f"{flag} {path}: inside {folder}/, which holds committed {holds}s, not a {kind}; "
+                             "write it under runs/ or outside the repository")
+    if os.path.isdir(path):
+        raise ValueError(f"{flag} {path}: a folder, not a file")
+    scratch = os.path.realpath("runs") in (real, os.path.commonpath([real, os.path.realpath("runs")]))
+    if os.path.lexists(path) and not overwrite and not (inside("runs") or scratch):
+        raise ValueError(f"{flag} {path}: there already; --overwrite replaces it")
+    return path
+
+
+@contextlib.contextmanager
+def staged_output(path: str, kind: str, overwrite: bool = False, flag: str = "--out"):
+    """`with staged_output(path, kind) as tmp:` write the file at `tmp` (in path's folder, with its extension, so
+    torch, numpy, matplotlib and moviepy see the format). It replaces `path` in one os.replace only if the block
+    ends without an exception; otherwise it is removed and `path` stays as it was. check_output's rule first;
+    a full or read-only disk is a one-line ValueError."""
+    check_output(path, kind, overwrite, flag)
+    folder = os.path.dirname(os.path.abspath(path))
+    stem, ext = os.path.splitext(os.path.basename(path))
+    tmp = None
+    try:
+        os.makedirs(folder, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=folder, prefix=f".{stem}.", suffix=f".partial{ext}")
+        os.close(fd)
+        os.chmod(tmp, 0o666 & ~UMASK)  # mkstemp makes 0600; the file gets what open() would have given it
+        yield tmp
+        os.replace(tmp, path)
+    except OSError as e:
+        raise ValueError(f"{flag} {path}: cannot write ({e.strerror or e}); any earlier file there stays") from None
+    finally:
+        if tmp is not None and os.path.exists(tmp):
+            os.remove(tmp)
+
+
+def write_json(path: str, data: Any, kind: str, overwrite: bool = False, flag: str = "--out",
+               allow_nan: bool = False) -> str:
+    """`data` as JSON at `path`, through staged_output; strict unless `allow_nan` (Python's NaN for "no value",
+    as a report's statistic of no episodes): a number that is not finite is a ValueError."""
+    try:
+        text = json.dumps(data, indent=1, allow_nan=allow_nan)
+    except ValueError:
+        raise ValueError(f"{flag} {path}: holds a number that is not finite, which JSON cannot; nothing written") from None
+    with staged_output(path, kind, overwrite, flag) as tmp, open(tmp, "w") as f:
+        f.write(text + "\n")
+    return path
+
+
 def load_config(path: str) -> dict[str, EnvConfig]:
     """Named environments from a YAML file (curriculum stages, Table 4.1 keys).
 
@@ -511,7 +578,7 @@ def save_map(path: str, scenario: Scenario) -> None:
     if scenario.starts is not None:
         for i, (y, x) in enumerate(scenario.starts):
             chars[y, x] = str(i)
-    with open(path, "w") as f:
+    with staged_output(path, "dataset", overwrite=True, flag="map") as tmp, open(tmp, "w") as f:
         f.write("\n".join("".join(r) for r in chars) + "\n")
 
 
@@ -557,8 +624,8 @@ def save_dataset(path: str, scenarios: list[Scenario], **columns: np.ndarray) ->
         if name in reserved or len(col) != len(scenarios):
             raise ValueError(f"{path}: column {name!r} must be new and have one row per scenario")
     obstacles, sizes, starts, covered = _stack(scenarios)
-    np.savez_compressed(path, obstacles=obstacles, sizes=sizes, starts=starts, covered=covered,
-                        **columns)
+    with staged_output(path, "dataset", overwrite=True, flag="dataset") as tmp:
+        np.savez_compressed(tmp, obstacles=obstacles, sizes=sizes, starts=starts, covered=covered, **columns)
 
 
 def _stack(scenarios: list[Scenario]) -> tuple[np.ndarray, ...]:

@@ -487,6 +487,11 @@ class Replay:
 
     def __init__(self, capacity: int, worlds: int, view: int, frames: int, n_step: int, gamma: float,
                  alpha: float, channels: int | None = None, hint: bool = False):
+        need = capacity * self.transition_bytes(view, channels, hint)
+        memory = os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+        if need > memory:  # before allocating: the arrays are zero pages until filled, hours into a run
+            raise ValueError(f"--buffer-size {capacity:,}: the replay memory needs {need / 2**30:,.1f} GiB, this machine "
+                             f"has {memory / 2**30:.1f} GiB")
         self.cap, self.worlds, self.V, self.k = capacity // worlds, worlds, view, frames
         self.n_step, self.gamma, self.alpha = n_step, gamma, alpha
         self.C, self.packed = channels or CHANNELS, channels is None
@@ -512,11 +517,15 @@ class Replay:
         self.max_priority = 1.0
         self.pinned: torch.Tensor | None = None  # the host side of batch()'s one copy to a GPU
 
+    @staticmethod
+    def transition_bytes(view: int, channels: int | None = None, hint: bool = False) -> int:
+        """Bytes a transition takes (its frame, scalars and sum-tree leaf), known before anything is allocated."""
+        frame = (CHANNELS * view * view + 7) // 8 + 4 * CHANNELS * view if channels is None else channels * view * view
+        scalars = 2 * int(np.prod(OUT_OF_BOUNDS)) + 1 + 2 + 1 + 1 + 4 + 1 + 1 + 8  # oob .. age, as __init__ has them
+        return frame + scalars + 16 + hint  # + the sum-tree's float64 leaf and its parent's share
+
     def bytes_per_transition(self) -> int:
-        maps = (self.bits, self.edges) if self.packed else (self.maps,)
-        return sum(a.itemsize * int(np.prod(a.shape[1:])) for a in
-                   (*maps, self.oob, self.last, self.battery, self.action, self.label,
-                    self.reward, self.terminal, self.final, self.age)) + 16 + (self.hint is not None)  # + sum-tree leaf
+        return self.transition_bytes(self.V, None if self.packed else self.C, self.hint is not None)
 
     def add_frames(self, worlds: np.ndarray, obs: dict, age: np.ndarray, final: np.ndarray) -> np.ndarray:
         """Write the current frame of each stream; returns the slots written."""
@@ -818,43 +827,26 @@ def write_episode_video(scenario: gridworld.Scenario, path: np.ndarray, video: s
                         sensor_range: int = 3) -> str:
     """An MP4 of one evaluation episode, replayed through gridworld from its agents' cells."""
     frames = gridworld.replay_frames(scenario, path, config=dict(sensor=sensor, sensor_range=sensor_range))
-    return gridworld.write_video(frames, video)
+    with gridworld.staged_output(video, "video", overwrite=True, flag="--capture-video") as tmp:
+        gridworld.write_video(frames, tmp)
+    return video
 
 
 # ----------------------------------------------------------------------------- files
-def save_checkpoint(path: str, state: dict) -> None:
-    """torch.save through a temporary file and a rename: a crash never leaves half a checkpoint, and a full disk is a
-    one-line ValueError that leaves the previous file and no temporary one."""
-    os.makedirs(os.path.dirname(path) or ".", exist_ok=True)
-    tmp = path + ".tmp"
-    try:
+def save_checkpoint(path: str, state: dict, kind: str = "run", flag: str = "checkpoint") -> None:
+    """torch.save through gridworld's staged write: a crash never leaves half a file, and a full disk is a one-line
+    ValueError that leaves the previous file. Only ever called on paths checked before training."""
+    with gridworld.staged_output(path, kind, overwrite=True, flag=flag) as tmp:
         torch.save(state, tmp)
-        os.replace(tmp, path)
-    except OSError as e:
-        with contextlib.suppress(OSError):
-            os.remove(tmp)
-        raise ValueError(f"{path}: cannot write ({e.strerror or e}); the previous file stays") from None
-
-
-def write_json(path: str, data: dict) -> None:
-    """A JSON file written as save_checkpoint writes weights (strict JSON: a number that is not finite is refused)."""
-    tmp = path + ".tmp"
-    try:
-        with open(tmp, "w") as f:
-            json.dump(data, f, indent=1, allow_nan=False)
-        os.replace(tmp, path)
-    except (OSError, ValueError) as e:
-        with contextlib.suppress(OSError):
-            os.remove(tmp)
-        raise ValueError(f"{path}: cannot write ({getattr(e, 'strerror', None) or e}); the previous file stays") from None
 
 
 def export(q: QNetwork, args: Args, info: dict) -> None:
     """Deployable weights at args.export: the noisy layers' means only, fp16, with what the network needs;
     beside them a JSON of the flags, the network and `info` (steps, provenance, parent model)."""
     weights = {k: v.cpu().half() for k, v in q.state_dict().items() if "sigma" not in k and "eps" not in k}
-    save_checkpoint(args.export, {"weights": weights, **q.network()})
-    write_json(os.path.splitext(args.export)[0] + ".json", {"args": asdict(args), "network": q.network(), **info})
+    save_checkpoint(args.export, {"weights": weights, **q.network()}, "model", "--export")
+    gridworld.write_json(os.path.splitext(args.export)[0] + ".json", {"args": asdict(args), "network": q.network(),
+                                                                        **info}, "model", True, "--export")
 
 
 def reason(e: BaseException) -> str:
@@ -984,9 +976,8 @@ def check_flags(args: Args) -> None:
     if args.export:  # before training, not at the first save
         if not args.export.endswith(".pt") or os.path.isdir(args.export):
             raise ValueError(f"--export must name a .pt file, got {args.export!r}")
-        if os.path.relpath(os.path.abspath(args.export), HERE).split(os.sep)[0] in ("results", "maps"):
-            raise ValueError(f"--export {args.export}: results/ and maps/ hold reports and datasets, not models; "
-                             "export under models/ or elsewhere")
+        for path in (args.export, os.path.splitext(args.export)[0] + ".json"):
+            gridworld.check_output(path, "model", overwrite=True, flag="--export")  # results/ and maps/ hold no models
         folder = os.path.dirname(os.path.abspath(args.export))
         while not os.path.exists(folder):  # the folders save_checkpoint would make: the nearest existing one
             folder = os.path.dirname(folder)
@@ -1130,11 +1121,9 @@ def start_run(args: Args, n_stages: int) -> tuple:
             raise ValueError(f"--hint contradicts {checkpoint} (no hint input); warm-start with --init-from instead")
     else:
         args = with_network(args, None if warm is None else network_of(warm, args.init_from), args.init_from)
-    outside = args.export and os.path.relpath(os.path.abspath(args.export), os.path.abspath(run_dir)).startswith("..")
-    before = [p for p in (args.export, os.path.splitext(args.export or "")[0] + ".json") if outside and os.path.isfile(p)]
-    if before and not args.overwrite and not (args.resume and exported_by(args.export, run_name)):
-        # a run's own folder and its own export (when resumed) are its own; anything else that is there stays
-        raise ValueError(f"--export {args.export}: {before[0]} is there already; --overwrite replaces it")
+    own = args.resume and exported_by(args.export, run_name)  # a resumed run's own export is its own to rewrite
+    for path in (args.export, os.path.splitext(args.export)[0] + ".json") if args.export else ():
+        gridworld.check_output(path, "model", args.overwrite or own, "--export")
     args = replace(args, run_name=run_name, export=args.export or os.path.join(run_dir, f"{SCRIPT}.pt"))
     device = torch.device("cuda" if args.cuda and torch.cuda.is_available() else "cpu")
     spec = {**asdict(args), "frames": args.frame_stack, "view": VIEW, "far_first": args.heuristic_far_first}
@@ -1724,7 +1713,8 @@ def main(args: Args) -> None:
                      "peak_rss_mb": peak_memory_mb()}
             point |= curve_point(q, held_out, args)
             curve.append(point | {"eval_seconds": round(time.time() - tick)})
-            write_json(os.path.join(run_dir, "curve.json"), {"args": asdict(args), "curve": curve})
+            gridworld.write_json(os.path.join(run_dir, "curve.json"), {"args": asdict(args), "curve": curve}, "run",
+                                 overwrite=True, flag="curve")
             for k in ("cpp_eval", "structured_eval"):
                 writer.add_scalar(f"curve/{k}_overlap", point[k]["overlap"], global_step)
                 writer.add_scalar(f"curve/{k}_alone_completion", point[f"{k}_alone"]["completion"], global_step)

@@ -8,7 +8,6 @@ figures from the same JSON.
     python report.py plot --out DIR               # the figures from the JSON in DIR
     python report.py collect --parts classical --per-size 2 --out DIR
     python report.py collect --parts structured rollout --structured-per-band 3 --overwrite   # two planner pieces
-    python evaluate.py report ...                 # the same commands
 
 Parts (JSON under --out): classical (classical_cpp.json: classical_cpp.compare, structured_eval and rollout
 included), structured (planners_structured.json: classical_cpp.compare_structured alone), rollout (rollout.json:
@@ -126,8 +125,9 @@ def reading(path: str):
 
 
 @contextmanager
-def staged(out: str):
-    """A temporary folder beside `out`; its files replace those of `out` only if the block succeeds."""
+def staged(out: str, overwrite: bool = False):
+    """A temporary folder beside `out`; its files replace those of `out` only if the block succeeds and every one
+    passes gridworld's write rule (a results JSON there already is replaced only with `overwrite`)."""
     if os.path.exists(out) and not os.path.isdir(out):
         raise ValueError(f"--out {out}: not a folder")
     parent = os.path.dirname(os.path.abspath(out))
@@ -139,11 +139,12 @@ def staged(out: str):
         raise ValueError(f"--out {out}: cannot write ({e.strerror})") from None
     try:
         yield tmp
-        for folder, _, files in os.walk(tmp):
-            for name in files:
-                rel = os.path.relpath(os.path.join(folder, name), tmp)
-                os.makedirs(os.path.dirname(os.path.join(out, rel)), exist_ok=True)
-                os.replace(os.path.join(tmp, rel), os.path.join(out, rel))
+        written = [os.path.relpath(os.path.join(d, n), tmp) for d, _, files in os.walk(tmp) for n in files]
+        for rel in written:  # gridworld's write rule; RESULTS.md and the figures are derived, remade by their command
+            gridworld.check_output(os.path.join(out, rel), "result", overwrite or rel.endswith((".md", ".png")), "--out")
+        for rel in written:
+            os.makedirs(os.path.dirname(os.path.join(out, rel)), exist_ok=True)
+            os.replace(os.path.join(tmp, rel), os.path.join(out, rel))
     except OSError as e:
         raise ValueError(f"--out {out}: cannot write ({e.strerror})") from None
     finally:
@@ -498,7 +499,8 @@ def collect(args: Collect, staging: str) -> list[str]:
         else:
             result = tabular_results(model, args.quiet)
         result["provenance"] = provenance(started, args)
-        written.append(classical_cpp.write_json(os.path.join(staging, PARTS[part]), result))
+        written.append(gridworld.write_json(os.path.join(staging, PARTS[part]), result, "result", overwrite=True,
+                                            allow_nan=True))  # NaN: a statistic of no episodes
         print(f"{part}: collected in {time.time() - started:.0f} s -> {os.path.join(args.out, PARTS[part])}", flush=True)
     return written
 
@@ -1481,18 +1483,9 @@ def cli(args: list[str] | None = None) -> Collect | Render | Plot:
     return gridworld.cli(Command, default=All(), args=args, description=__doc__, config=CLI_CONFIG)
 
 
-def beside(default, name: str, description: str):
-    """The CLI type of a script whose own dataclass (`default`, an instance giving its defaults) is the default
-    subcommand `name`, with this report as the subcommand `report`; parse it with
-    tyro.cli(..., default=default, config=CLI_CONFIG) so that the script's flags need no subcommand name."""
-    own = tyro.conf.subcommand(name, default=default, description=f"{description} (the default: no subcommand needed)")
-    report = tyro.conf.subcommand("report", default=All(), description=__doc__.split("\n\n")[0])
-    return Annotated[type(default), own] | Annotated[Command, report]
-
-
 def main(command: Collect | Render | Plot) -> list[str]:
     """Run a report command; every file is written under a staging folder and moved under --out at the end."""
-    with staged(command.out) as tmp:
+    with staged(command.out, getattr(command, "overwrite", False)) as tmp:
         if isinstance(command, Collect):
             collect(command, tmp)
         if isinstance(command, (All, Render)):

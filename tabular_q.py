@@ -23,7 +23,6 @@ as at --time-limit, and the exit status is 130 (SIGINT) or 143 (SIGTERM).
 """
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import json
 import math
@@ -50,10 +49,6 @@ HEURISTIC = 4  # the fifth action of §5.3.2 (to the environment, 4 is WAIT: no 
 NO_MOVE = 4  # the last-move code of an episode's first reading
 READING_OF_MOVE = np.array([0, 1, 3, 2])  # r' is ordered N, S, E, W; moves are N, S, W, E
 HASH = np.uint64(0x9E3779B97F4A7C15)  # Fibonacci hashing multiplier (2^64 / golden ratio)
-ROOT = os.path.dirname(os.path.realpath(__file__))
-PROTECTED = ("maps", "results")  # committed datasets and report numbers: never a table's place
-UMASK = os.umask(0o022)
-os.umask(UMASK)
 TABLE_ARRAYS = ("keys", "q", "visits", "updates", "memory", "sensor_range")  # what QTable.save writes
 
 
@@ -166,23 +161,6 @@ def allowed_actions(readings: np.ndarray, heuristic: bool) -> np.ndarray:
 
 
 # ----------------------------------------------------------------------------- files
-@contextlib.contextmanager
-def staged(path: str, mode: str = "wb"):
-    """`with staged(path, mode) as f:` a file object on a temporary file in path's folder that replaces `path`
-    (os.replace, atomic) only when the block ends without an exception; otherwise it is removed and `path` is as
-    it was."""
-    fd, tmp = tempfile.mkstemp(dir=os.path.dirname(os.path.abspath(path)), prefix=f".{os.path.basename(path)}.",
-                               suffix=".tmp")
-    try:
-        os.chmod(tmp, 0o666 & ~UMASK)  # mkstemp makes 0600; the file gets what open() would have given it
-        with os.fdopen(fd, mode) as f:
-            yield f
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.remove(tmp)
-
-
 def is_table(path: str) -> bool:
     """Whether `path` is an .npz with the arrays QTable.save writes (read from the zip's listing alone)."""
     try:
@@ -208,12 +186,8 @@ def check_table_path(table_path: str, overwrite: bool) -> None:
     """The write rule of --table-path: nowhere under maps/ or results/ of this repository; an existing file there
     (the .npz or the .json beside it) must be a tabular_q table or its .json, and is replaced only with
     --overwrite."""
-    real = os.path.realpath(table_path)
-    for folder in PROTECTED:
-        guarded = os.path.join(ROOT, folder)
-        if os.path.commonpath([real, guarded]) == guarded:
-            raise ValueError(f"--table-path {table_path}: inside {folder}/, which holds committed "
-                             f"{'datasets' if folder == 'maps' else 'report results'}; write tables to runs/ or models/")
+    for path in (table_path, os.path.splitext(table_path)[0] + ".json"):
+        gridworld.check_output(path, "model", overwrite=True, flag="--table-path")  # maps/ and results/ hold no tables
     json_path = os.path.splitext(table_path)[0] + ".json"
     for path, ours, what in ((table_path, is_table, "a tabular_q table"),
                              (json_path, is_table_json, "a tabular_q table's .json")):
@@ -301,9 +275,8 @@ class QTable:
         """Rows by key (sorted keys compress to about half), Q-values as float32; written to a temporary file
         beside `path` that then replaces it, so a kill or a full disk during the save leaves the old file whole."""
         rows = 1 + np.argsort(self.keys[1:self.size])
-        os.makedirs(os.path.dirname(path) or ".", exist_ok=True)
-        with staged(path) as f:
-            np.savez_compressed(f, keys=self.keys[rows], q=self.q[:, rows].astype(np.float32),
+        with gridworld.staged_output(path, "model", overwrite=True, flag="--table-path") as tmp:
+            np.savez_compressed(tmp, keys=self.keys[rows], q=self.q[:, rows].astype(np.float32),
                                 visits=self.visits[rows].astype(np.uint32),
                                 updates=self.updates[:, rows].astype(np.uint32),
                                 memory=self.memory, sensor_range=self.sensor_range)
@@ -732,15 +705,11 @@ def main(args: Args) -> dict:
         if stop["signal"]:
             info["interrupted"] = signal.Signals(stop["signal"]).name
         json_path = os.path.splitext(table_path)[0] + ".json"
-        try:  # both staged: the table replaces the old one, then the .json does, each in one os.replace
-            os.makedirs(os.path.dirname(json_path) or ".", exist_ok=True)
-            with staged(json_path, "w") as f:
+        # both staged: the table replaces the old one, then the .json does, each in one os.replace
+        with gridworld.staged_output(json_path, "model", overwrite=True, flag="--table-path") as tmp:
+            with open(tmp, "w") as f:
                 json.dump(info, f, indent=1)
-                f.flush()
-                table.save(table_path)
-        except OSError as e:
-            raise ValueError(f"--table-path {table_path}: cannot write ({e.strerror}); any earlier table there "
-                             "is as it was") from None
+            table.save(table_path)
     finally:
         for signum, handler in previous.items():
             signal.signal(signum, handler)

@@ -271,8 +271,8 @@ def main(args: Args) -> None:
     else:
         print(f"collecting {args.states:,} states with {args.model}")
         data = collect(args, walker, spec)
-        os.makedirs(os.path.dirname(args.data) or ".", exist_ok=True)
-        np.savez(args.data, **data)
+        with gw.staged_output(args.data, "result", flag="--data") as tmp:  # whole or absent: it is read back
+            np.savez(tmp, **data)
     maps = np.unique(data["map"])
     test_maps = maps[int(len(maps) * (1 - args.test_share)):]
     test = np.flatnonzero(np.isin(data["map"], test_maps))

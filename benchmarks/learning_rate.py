@@ -24,6 +24,7 @@ import tyro
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+import gridworld  # noqa: E402
 import rainbow_cpp as rc  # noqa: E402
 
 RECIPE = ["--network", "compact", "--no-cuda", "--threads", "1", "--no-heuristic-dead-ends", "--heuristic-random-ties",
@@ -78,6 +79,7 @@ def main(a: Args) -> None:
         if not same:
             raise ValueError(f"--out {a.out} holds another sweep (or no sweep): choose another path")
         results["rates"] = before["rates"]
+    gridworld.check_output(a.out, "result", overwrite=True, flag="--out")  # a sweep's own file, continued
     out = os.path.abspath(a.out)
     here = os.getcwd()
     with tempfile.TemporaryDirectory() as workdir:
@@ -95,19 +97,11 @@ def main(a: Args) -> None:
                 rc.main(args)
                 run_dir = os.path.join("runs", name)
                 results["rates"][f"{rate:g}"] = rate_entry(run_dir, time.time() - start)
-                write(out, results)
+                gridworld.write_json(out, results, "result", overwrite=True, flag="--out")
                 print(f"learning rate {rate:g}: eval overlap {results['rates'][f'{rate:g}']['overlap']}", flush=True)
         finally:
             os.chdir(here)
     print(f"wrote {a.out}")
-
-
-def write(path: str, results: dict) -> None:
-    """The results so far, replacing the file in one rename."""
-    os.makedirs(os.path.dirname(path), exist_ok=True)
-    with open(path + ".tmp", "w") as f:
-        json.dump(results, f, indent=1)
-    os.replace(path + ".tmp", path)
 
 
 if __name__ == "__main__":

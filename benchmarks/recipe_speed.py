@@ -12,7 +12,6 @@ of the functions that do them.
 from __future__ import annotations
 
 import cProfile
-import json
 import os
 import pstats
 import sys
@@ -24,6 +23,7 @@ import torch
 import tyro
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+import gridworld  # noqa: E402
 import rainbow_cpp as rc  # noqa: E402
 
 RECIPE = ["--network", "compact", "--no-cuda", "--threads", "1", "--no-heuristic-dead-ends", "--heuristic-random-ties",
@@ -50,6 +50,8 @@ class Args:
     """replay memory (Table 6.1's million costs 1.7 GiB and the same time a step)"""
     json: str | None = None
     """also write the figures here"""
+    overwrite: bool = False
+    """let --json replace a file that is there already"""
 
 
 def run(total: int, a: Args, workdir: str, name: str, profile: cProfile.Profile | None = None) -> float:
@@ -79,6 +81,8 @@ def split(profile: cProfile.Profile) -> dict[str, float]:
 def main(a: Args) -> None:
     if a.steps < 16 or a.learning_starts < 16 or a.buffer_size < 1024:
         raise ValueError("--steps and --learning-starts must be >= 16 and --buffer-size >= 1024")
+    if a.json:
+        a.json = os.path.abspath(gridworld.check_output(a.json, "result", a.overwrite, "--json"))  # before the runs
     torch.set_num_threads(1)
     with tempfile.TemporaryDirectory() as workdir:
         here = os.getcwd()
@@ -99,10 +103,10 @@ def main(a: Args) -> None:
     rest = profiled - sum(parts.values())
     print(f"  {100 * rest / profiled:5.1f}%  {rest:6.1f} s  the rest (acting forward, bookkeeping, start-up)")
     if a.json:
-        with open(a.json, "w") as f:
-            json.dump({"env_steps_per_s": round(sps, 1), "steps": a.steps, "profiled_seconds": round(profiled, 1),
-                       "parts_seconds": {k: round(v, 2) for k, v in parts.items()}, "flags": RECIPE,
-                       "torch": torch.__version__}, f, indent=1)
+        gridworld.write_json(a.json, {"env_steps_per_s": round(sps, 1), "steps": a.steps,
+                                      "profiled_seconds": round(profiled, 1),
+                                      "parts_seconds": {k: round(v, 2) for k, v in parts.items()}, "flags": RECIPE,
+                                      "torch": torch.__version__}, "result", a.overwrite, "--json")
 
 
 if __name__ == "__main__":

@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import collections
 import contextlib
-import json
 import os
 import sys
 import tempfile
@@ -73,6 +72,8 @@ class Args:
     """a smoke test: at most 320 steps (fig6.8 too) and 3 repeats; smaller --steps, --sb3-steps, --repeats stay"""
     json: str | None = None
     """write the rows here"""
+    overwrite: bool = False
+    """let --json replace a file that is there already"""
 
 
 def stage(args: Args) -> gridworld.EnvConfig:
@@ -275,6 +276,8 @@ def targets(rows: list[dict]) -> list[str]:
 def main(args: Args) -> list[dict]:
     if args.quick:  # at most these; smaller values given with --quick stay (the tests run a few steps)
         args.steps, args.sb3_steps, args.repeats = min(args.steps, 320), min(args.sb3_steps, 320), min(args.repeats, 3)
+    if args.json:
+        gridworld.check_output(args.json, "result", args.overwrite, "--json")  # before the minutes of measuring
     config = stage(args)
     rows: list[dict] = []
     threads_before = torch.get_num_threads()
@@ -332,9 +335,7 @@ def main(args: Args) -> list[dict]:
     for line in targets(rows):
         print(line)
     if args.json:
-        os.makedirs(os.path.dirname(os.path.abspath(args.json)), exist_ok=True)
-        with open(args.json, "w") as f:
-            json.dump(rows, f, indent=1)
+        gridworld.write_json(args.json, rows, "result", args.overwrite, "--json")
         print(f"wrote {args.json}")
     return rows
 

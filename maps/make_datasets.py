@@ -57,7 +57,8 @@ class Args:
     quiet: bool = False
     """no progress bar (there is none either when stdout is not a terminal)"""
     pictures: bool = False
-    """write only docs/images/map_families.png: the first 20x20 map of each family (random: cpp_eval's)"""
+    """write only docs/images/map_families.png: the first 20x20 map of each family (random: cpp_eval's); --overwrite
+    to replace the committed one"""
     crops: tuple[str, ...] = ()
     """map files (MovingAI .map or ASCII): write only OUT/crops.npz, --crops-per-map square crops of each at random
     places, --marl-agents starts each (columns family: the map's name, size: the crop's side, row and col: its corner)"""
@@ -175,8 +176,8 @@ def pictures(args: Args, path: str = PICTURE) -> str:
         ax.plot(s.starts[0, 1], s.starts[0, 0], "o", color="tab:red", markersize=6, markeredgecolor="k")
         ax.set(xticks=[], yticks=[], title=f"{family}: {int(s.obstacles.sum())} obstacle cells")
     fig.tight_layout()
-    os.makedirs(os.path.dirname(path) or ".", exist_ok=True)
-    fig.savefig(path, dpi=100)
+    with gridworld.staged_output(path, "picture", args.overwrite, "--pictures") as tmp:
+        fig.savefig(tmp, dpi=100)
     plt.close(fig)
     return path
 
@@ -196,18 +197,12 @@ def main(args: Args) -> None:
         raise ValueError(f"--out {args.out}: not a folder")
     datasets = [] if args.crops else plan(args)
     names = ["crops"] if args.crops else [name for name, _, _, _ in datasets]
-    present = [f"{name}.npz" for name in names if os.path.exists(os.path.join(args.out, f"{name}.npz"))]
-    if present and not args.overwrite:
-        raise ValueError(f"--out {args.out} already holds {', '.join(present)}: --overwrite replaces "
-                         f"{'it' if len(present) == 1 else 'them'}, or give another --out")
+    for name in names:  # gridworld's write rule, before any map is drawn
+        gridworld.check_output(os.path.join(args.out, f"{name}.npz"), "dataset", args.overwrite, "--out")
     if args.crops:
         scenarios, columns = crops(args)
-        try:
-            os.makedirs(args.out, exist_ok=True)
-            path = os.path.join(args.out, "crops.npz")
-            gridworld.save_dataset(path, scenarios, **columns)
-        except OSError as e:
-            raise ValueError(f"--out {args.out}: cannot write ({e.strerror})") from None
+        path = os.path.join(args.out, "crops.npz")
+        gridworld.save_dataset(path, scenarios, **columns)
         print(f"{path}: {len(scenarios)} crops of {len(args.crops)} map(s)")
         return
     for name, draws, _, _ in datasets:  # every setting is checked before any map is drawn or file written
@@ -227,14 +222,10 @@ def main(args: Args) -> None:
             drawn[name] = drawn[name][:keep]
             if name in NO_COVERAGE:
                 drawn[name] = [gridworld.Scenario(s.obstacles, s.starts) for s in drawn[name]]
-    try:
-        os.makedirs(args.out, exist_ok=True)
-        for name, _, _, columns in datasets:
-            path = os.path.join(args.out, f"{name}.npz")
-            gridworld.save_dataset(path, drawn[name], **columns)
-            print(f"{path}: {len(drawn[name])} scenarios, {os.path.getsize(path) / 1e3:.0f} kB")
-    except OSError as e:
-        raise ValueError(f"--out {args.out}: cannot write ({e.strerror})") from None
+    for name, _, _, columns in datasets:
+        path = os.path.join(args.out, f"{name}.npz")
+        gridworld.save_dataset(path, drawn[name], **columns)
+        print(f"{path}: {len(drawn[name])} scenarios, {os.path.getsize(path) / 1e3:.0f} kB")
 
 
 if __name__ == "__main__":

@@ -830,15 +830,3 @@ def test_evaluate_moves_the_bar_and_times_the_planning():
         rows, ms = cc.evaluate(name, scenarios, bar)
         assert bar.n == 2 and len(rows) == 2 and ms >= 0
         assert rows[0]["overlap"] == 0.0 and rows[0]["steps"] == 63
-
-
-
-def test_write_json_is_all_or_nothing(tmp_path):
-    path = tmp_path / "sub" / "x.json"
-    assert cc.write_json(str(path), {"a": [1, 2]}) == str(path) and json.loads(path.read_text()) == {"a": [1, 2]}
-    with pytest.raises(TypeError):
-        cc.write_json(str(path), {"a": object()})
-    assert json.loads(path.read_text()) == {"a": [1, 2]} and [p.name for p in path.parent.iterdir()] == ["x.json"]
-    (tmp_path / "file").write_text("")
-    with pytest.raises(ValueError, match="cannot write"):
-        cc.write_json(str(tmp_path / "file" / "x.json"), {})

@@ -304,12 +304,12 @@ def test_make_datasets_replaces_files_only_with_overwrite(tmp_path):
     --overwrite is given."""
     (tmp_path / "cpp_eval.npz").write_bytes(b"mine")
     cli_error(tmp_path, "maps/make_datasets.py", "--out", ".", "--per-size", "1",
-              match="^error: --out . already holds cpp_eval.npz: --overwrite replaces it, or give another --out$")
+              match=r"^error: --out \./cpp_eval\.npz: there already; --overwrite replaces it$")
     assert listing(tmp_path) == ["cpp_eval.npz"] and (tmp_path / "cpp_eval.npz").read_bytes() == b"mine"
     crop = ["--crops", str(ROOT / "maps" / "external" / "random-8-8-20.map"), "--crops-per-map", "1",
             "--marl-agents", "2"]
     (tmp_path / "crops.npz").write_bytes(b"mine")
-    cli_error(tmp_path, "maps/make_datasets.py", "--out", ".", *crop, match="already holds crops.npz")
+    cli_error(tmp_path, "maps/make_datasets.py", "--out", ".", *crop, match=r"crops\.npz: there already; --overwrite")
     assert (tmp_path / "crops.npz").read_bytes() == b"mine"
     done = subprocess.run([sys.executable, str(ROOT / "maps" / "make_datasets.py"), "--out", ".", *crop,
                            "--overwrite"], cwd=tmp_path, capture_output=True, text=True, timeout=60)
@@ -413,8 +413,10 @@ def test_evaluate_refuses_flags_that_would_be_ignored_or_write_among_other_files
     one_line_value_error(evaluate.main, evaluate.Args(policy="greedy", dataset="folder"),
                          match="--dataset folder: a folder, not a dataset file")
     assert listing(tmp_path) == ["earlier", "earlier/summary.json", "folder", "folder/model.pt"]
+    one_line_value_error(evaluate.main, evaluate.Args(policy="greedy", maps=(str(ROOT / "maps/external/empty-8-8.map"),),
+                                                      out="earlier"), match="summary.json: there already; --overwrite")
     evaluate.main(evaluate.Args(policy="greedy", maps=(str(ROOT / "maps/external/empty-8-8.map"),), out="earlier",
-                                quiet=True))  # an earlier --out is written again
+                                quiet=True, overwrite=True))  # an earlier --out is written again with --overwrite
     assert sorted(os.listdir(tmp_path / "earlier")) == ["episodes.csv", "summary.json"]
 
 
@@ -429,17 +431,18 @@ def test_evaluate_finds_the_shipped_models_from_another_folder(tmp_path, monkeyp
     assert sorted(os.listdir(tmp_path)) == ["marl", "rainbow", "tabular"]
 
 
-def test_classical_cpp_overwrites_only_its_own_metrics(tmp_path):
+def test_classical_cpp_overwrites_metrics_only_with_overwrite(tmp_path):
     import classical_cpp as cc
 
     (tmp_path / "model.json").write_text('{\n "args": {}\n}\n')
     one_line_value_error(cc.main, cc.Args(maps=(str(ROOT / "maps/external/empty-8-8.map"),), out=str(tmp_path / "model.json")),
-                         match="model.json: exists and is not an earlier --out")
+                         match="model.json: there already; --overwrite replaces it")
     assert (tmp_path / "model.json").read_text() == '{\n "args": {}\n}\n'
     one_line_value_error(cc.main, cc.Args(report=True, maps=("x.map",), out=str(tmp_path / "report")),
                          match="--report plans its own maps")
     out = tmp_path / "metrics.jsonl"
-    for _ in range(2):  # the second run writes over the first's metrics
-        cc.main(cc.Args(maps=(str(ROOT / "maps/external/empty-8-8.map"),), out=str(out), quiet=True))
+    for overwrite in (False, True):  # the second run writes over the first's metrics, as --overwrite asks
+        cc.main(cc.Args(maps=(str(ROOT / "maps/external/empty-8-8.map"),), out=str(out), quiet=True,
+                        overwrite=overwrite))
     assert len(out.read_text().splitlines()) == 1
     assert listing(tmp_path) == ["metrics.jsonl", "model.json"]

@@ -15,7 +15,7 @@ ROOT = Path(__file__).resolve().parent.parent
 
 
 def run(tmp_path, **kw):
-    args = evaluate.Args(out=str(tmp_path / "out"), **kw)
+    args = evaluate.Args(out=str(tmp_path / "out"), overwrite=True, **kw)  # one folder, evaluated again
     summary = evaluate.main(args)
     with open(tmp_path / "out" / "episodes.csv") as f:
         rows = list(csv.DictReader(f))

@@ -114,7 +114,7 @@ def test_writing_fails_cleanly(files, monkeypatch):
 
     monkeypatch.setattr(evaluate.gridworld, "write_video", broken)
     before = sorted(files.iterdir())
-    with pytest.raises(ValueError, match="x.mp4: cannot write .No space left on device."):
+    with pytest.raises(ValueError, match="cannot write .No space left on device."):
         evaluate.main(evaluate.Args(maps=room(files), out=str(files / "out"), video=str(files / "video"), quiet=True))
     assert sorted(files.iterdir()) == before  # the files written so far are gone, and their folders
 

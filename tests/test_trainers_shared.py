@@ -42,7 +42,7 @@ SHARED = [
     "frame_shape", "device_of", "autocast", "SumTree", "Replay", "hand_over", "Stacker", "observe", "to_torch",
     "stuck", "large_margin_loss", "margin_weight", "labelled", "learn", "diagnostics_of", "eval_config", "heuristic_baseline",
     "world_paths", "write_episode_video",
-    "save_checkpoint", "write_json", "export", "read_model", "network_of", "policy_from", "load_policy",
+    "save_checkpoint", "export", "read_model", "network_of", "policy_from", "load_policy",
     "load_checkpoint", "check_flags", "run_name_of", "with_network", "observed", "lineage", "host", "seed_everything",
     "start_run", "exported_by", "hinted", "save_run", "lock_run", "stop_signals", "peak_memory_mb", "progress_bar", "reason",
 ]
