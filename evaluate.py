@@ -33,7 +33,7 @@ ones with their default model) and prints and writes DIR/compare.md and DIR/comp
 time-save and completion per policy, by map when there are at most 12 maps. --video VDIR films the
 first --video-episodes episodes of each map (at most --video-max in all): VDIR/<episode>.mp4 and a PNG
 of the final coverage with the path drawn in step order; with --compare also DIR/compare.png, the first
-episode of --policy beside the first compared policy. --starts takes {map file name: [[row, col], ...]}
+episode of --policy beside each compared policy's, a panel each. --starts takes {map file name: [[row, col], ...]}
 or maps/external/references.json's {map file name: [{"start": [row, col], ...}, ...]}; starts drawn with
 --seed depend on the seed and the map's file name only. Bad input is a one-line error and writes nothing;
 the files are written only once everything has run.
@@ -642,7 +642,7 @@ def main(args: Args) -> dict:
     filmed = _filmed(args, episodes) if args.video else []
     results, paths = {}, {}
     for p, run in runners.items():
-        paths[p] = dict.fromkeys(filmed if p == args.policy else [0] if filmed and p in policies[1:2] else [])
+        paths[p] = dict.fromkeys(filmed if p == args.policy else [0] if filmed else [])  # compare.png: episode 0
         results[p] = run(episodes, paths[p] or None)
     return _write(args, episodes, results, paths)
 
@@ -672,13 +672,13 @@ def _write(args: Args, episodes: list[tuple[str, Scenario]], results: dict[str, 
         stem = os.path.join(args.video, f"{i:03d}-" + re.sub(r"[^A-Za-z0-9_-]+", "-", name).strip("-"))
         files[stem + ".mp4"] = partial(_write_video, scenario=scenario, cells=cells, config=config)
         files[stem + ".png"] = partial(gridworld.plot_path, scenario, cells, title=_title(label, name, rows[i]))
-    compared = list(results)[1:2]
+    compared = list(results)[1:]
     if paths[args.policy] and compared:
         name, scenario = episodes[0]
         files[os.path.join(args.out, "compare.png")] = partial(
-            _write_pair, scenario=scenario, title=f"{name}, start {rows[0]['start']}",
+            _write_panels, scenario=scenario, title=f"{name}, start {rows[0]['start']}",
             sides=[(paths[p][0], f"{shown}: overlap {results[p][0]['overlap']:.3f}, {results[p][0]['steps']} steps")
-                   for p, shown in ((args.policy, label), (compared[0], compared[0]))])
+                   for p, shown in ((args.policy, label), *((p, p) for p in compared))])
     _commit(files, args.overwrite, args.quiet)
     print("\n".join(lines))
     print(f"wrote {args.out}" + (f" and {len(paths[args.policy])} videos in {args.video}" if args.video else ""))
@@ -712,17 +712,25 @@ def _write_video(path: str, scenario: Scenario, cells, config: dict | None) -> N
     gridworld.write_video(frames + frames[-1:] * fps, path, fps)  # the final coverage stays on screen for a second
 
 
-def _write_pair(path: str, scenario: Scenario, title: str, sides: list[tuple]) -> None:
-    """Two policies' paths on the same episode, side by side."""
+def _write_panels(path: str, scenario: Scenario, title: str, sides: list[tuple]) -> None:
+    """Every compared policy's path on the same episode, a panel each, with one legend for the marks."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.lines import Line2D
     h, w = scenario.obstacles.shape
-    fig, axes = plt.subplots(1, 2, figsize=(2 * max(4.0, w / 5), max(4.0, h / 5) + 0.8))
-    for ax, (cells, side) in zip(axes, sides):
+    fig, axes = plt.subplots(1, len(sides), figsize=(len(sides) * max(4.0, w / 5), max(4.0, h / 5) + 1.2),
+                             squeeze=False)
+    for ax, (cells, side) in zip(axes[0], sides):
         gridworld.plot_path(scenario, cells, title=side, ax=ax)
+    marks = [Line2D([], [], marker="o", color="tab:green", markeredgecolor="k", linestyle="", label="start"),
+             Line2D([], [], marker="s", color="tab:red", markeredgecolor="k", linestyle="", label="end"),
+             Line2D([], [], color="tab:blue", linewidth=2, label="path, light to dark in step order"),
+             Line2D([], [], marker="s", color=(1.0, 0.85, 0.85), linestyle="", markersize=10, label="covered"),
+             Line2D([], [], marker="s", color="k", linestyle="", markersize=10, label="obstacle")]
+    fig.legend(handles=marks, loc="lower center", ncol=len(marks), frameon=False)
     fig.suptitle(title)
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0.07, 1, 1))
     fig.savefig(path, dpi=120)
     plt.close(fig)
 

@@ -83,6 +83,7 @@ OUT_OF_BOUNDS_SCALE = 100.0  # the networks read out_of_bounds (eq. 6.5 counts o
 MAX_MAP_SIDE = 256  # the longest map side any config, .map file or dataset may have (the repo's maps are <= 48): checked
 # before anything is allocated, so a typo (size: 100000) is a one-line error, not a process killed at 22 GB
 MAX_DATASET_CELLS = 1 << 28  # cells (maps x rows x columns) of a dataset's padded arrays; maps/ holds at most 9 M
+CANVAS_BYTES = 9  # bytes a world holds per canvas cell (5 bool arrays and the 4-byte observation canvas)
 MAX_MAP_FILE_BYTES = 16 << 20  # a .map/ASCII map file is read whole; a 256x256 map is ~66 kB
 
 
@@ -1426,6 +1427,10 @@ class GridWorldCore:
         """(Re)build the canvas-coordinate arrays, keeping the worlds in progress."""
         c = self.config.view_size // 2
         B, Ph, Pw = self.B, H + 2 * c, W + 2 * c
+        need, memory = B * Ph * Pw * CANVAS_BYTES, os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+        if need > memory:  # before allocating: a typo in a count is a one-line error, not a process killed
+            raise ValueError(f"{B:,} worlds of {Ph}x{Pw} canvas cells need {need / 2**30:,.1f} GiB, this machine has "
+                             f"{memory / 2**30:.1f} GiB")
         keep = {}
         if old is not None:
             oc = self.c

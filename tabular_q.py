@@ -131,7 +131,7 @@ class Encoder:
         radix = np.array([cardinal + 2] * 4 + [diagonal + 2] * 4, np.int64)
         self.weights = np.concatenate([[1], np.cumprod(radix[:-1])])
         self.base = int(np.prod(radix)) * 5 + 1
-        if self.base ** memory >= 2 ** 63:
+        if memory * math.log2(self.base) >= 63:  # by logarithms: base ** memory of a huge K would take forever
             raise ValueError(f"K = {memory} with r = {sensor_range} gives {self.base}^{memory} states, more "
                              "than an int64 key holds")
         self.memory = memory

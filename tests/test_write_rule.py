@@ -91,7 +91,7 @@ def test_no_script_writes_a_file_around_the_rule(script):
     writer) writes to a path given by gridworld.staged_output, i.e. sits in a function that uses the rule, or is a
     writer that evaluate's and report's staging hand a temporary path."""
     tree = ast.parse((ROOT / script).read_text())
-    given_a_temporary_path = {"_write_csv", "_write_json", "_write_text", "_write_video", "_write_pair",  # evaluate
+    given_a_temporary_path = {"_write_csv", "_write_json", "_write_text", "_write_video", "_write_panels",  # evaluate
                               "_save"}  # report's figures, drawn into its staging folder
     not_an_output = {"lock_run", "write_stage", "batched_trainer"}  # a lock file; benchmarks: a stage in a temporary folder
 
