@@ -142,6 +142,10 @@ class Args:
     """episodes filmed in all, at most"""
     quiet: bool = False
     """no progress bars (they are off anyway when stdout is not a terminal)"""
+    trainer: str | None = None
+    """the trainer script whose model --checkpoint holds, for a model of a copied and changed trainer (its network,
+    observation and evaluation are used); default: the script the model's JSON names, looked for in the working
+    folder and beside evaluate.py, else rainbow_cpp.py (rainbow) or rainbow_marl.py (marl)"""
     out: str = "runs/eval"
     """output folder for episodes.csv, summary.json and, with --compare, compare.md / .json / .png"""
     overwrite: bool = False
@@ -331,10 +335,51 @@ def checkpoint_of(args: Args, policy: str) -> str:
     return here if os.path.exists(here) else os.path.join(os.path.dirname(os.path.abspath(__file__)), here)
 
 
+def made_by(path: str) -> str | None:
+    """The trainer script an export's JSON names (its provenance), or None."""
+    try:
+        with open(os.path.splitext(path)[0] + ".json") as f:
+            return json.load(f)["provenance"]["script"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+
+
+def trainer_of(args: Args, path: str, shipped: str):
+    """The module of the trainer that made the model at `path`, whose load_policy and evaluate_policy score it:
+    --trainer, else the script the model's JSON names, else the shipped trainer `shipped`. A copied trainer is
+    imported from its file (the working folder's, else the one beside evaluate.py)."""
+    import importlib
+    import importlib.util
+    script = args.trainer or made_by(path) or f"{shipped}.py"
+    name = os.path.splitext(os.path.basename(script))[0]
+    if name in ("rainbow_cpp", "rainbow_marl") and not args.trainer:
+        return importlib.import_module(name)
+    here = os.path.join(os.path.dirname(os.path.abspath(__file__)), os.path.basename(script))
+    found = next((p for p in (script, here) if os.path.isfile(p)), None)
+    if found is None:
+        raise ValueError(f"{'--trainer ' + script if args.trainer else path + ': made by ' + script}: no such file in "
+                         "the working folder nor beside evaluate.py (--trainer PATH names it)")
+    loaded = sys.modules.get(name)
+    if loaded is not None and os.path.abspath(getattr(loaded, "__file__", "")) == os.path.abspath(found):
+        return loaded
+    spec = importlib.util.spec_from_file_location(name, found)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module  # dataclasses look their module up while it runs
+    try:
+        spec.loader.exec_module(module)
+    except Exception as e:  # noqa: BLE001 (any failure of a user's script is one line)
+        del sys.modules[name]
+        raise ValueError(f"{found}: cannot import it ({type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''})") \
+            from None
+    missing = [f for f in ("load_policy", "evaluate_policy") if not hasattr(module, f)]
+    if missing:
+        raise ValueError(f"{found}: no {' or '.join(missing)}; a trainer copied from {shipped}.py has them")
+    return module
+
+
 def _rainbow(args: Args, rollout: bool = False):
     """Check the settings and load the model; returns run(episodes, paths) -> rows. With `rollout`, the agent with
     search at test time (rainbow-rollout): each step the one-step rollout of the agent and its fallback."""
-    import rainbow_cpp
     if rollout and args.sensor != "full":
         raise ValueError("rainbow-rollout finishes its tries on the true map: full information only (--sensor full)")
     if args.agents != 1:
@@ -342,7 +387,9 @@ def _rainbow(args: Args, rollout: bool = False):
     if args.faulty_agent_at is not None or args.action_loss:
         raise ValueError("--faulty-agent-at and --action-loss need several agents (the marl policy)")
     path = checkpoint_of(args, "rainbow-rollout" if rollout else "rainbow")
-    q = _finite_model(_load(rainbow_cpp.load_policy, path, "rainbow_cpp model"), path, "rainbow_cpp model")
+    rainbow_cpp = trainer_of(args, path, "rainbow_cpp")
+    kind = f"{rainbow_cpp.__name__} model"
+    q = _finite_model(_load(rainbow_cpp.load_policy, path, kind), path, kind)
     frames = q.conv[0].in_channels // 4
     if args.hint_bonus and not q.network().get("hint"):
         raise ValueError("--hint-bonus needs a model with the hint input (rainbow_cpp.py --hint)")
@@ -365,13 +412,14 @@ def run_rainbow(args: Args, episodes: list[tuple[str, Scenario]], paths: dict | 
 
 def _marl(args: Args):
     """Check the settings and load the model; returns run(episodes, paths) -> rows."""
-    import rainbow_marl
     if args.faulty_agent_at is not None and (args.agents < 2 or not 0 <= args.faulty_agent_at <= 1):
         raise ValueError("--faulty-agent-at needs --agents >= 2 and a fraction in [0, 1]")
     if not 0 <= args.action_loss < 1:
         raise ValueError(f"--action-loss must be in [0, 1), got {args.action_loss}")
     path = checkpoint_of(args, "marl")
-    q = _finite_model(_load(rainbow_marl.load_policy, path, "rainbow_marl model"), path, "rainbow_marl model")
+    rainbow_marl = trainer_of(args, path, "rainbow_marl")
+    kind = f"{rainbow_marl.__name__} model"
+    q = _finite_model(_load(rainbow_marl.load_policy, path, kind), path, kind)
     frames = q.conv[0].in_channels // 4
 
     def rollout(part, i, trajectories):
@@ -624,6 +672,8 @@ def main(args: Args) -> dict:
             raise ValueError(f"{flag} must be >= 1, got {value}")
     if args.checkpoint and args.policy not in LEARNED:
         raise ValueError(f"--checkpoint is for the learned policies ({', '.join(LEARNED)}), not {args.policy}")
+    if args.trainer and args.policy not in ("rainbow", "rainbow-rollout", "marl"):
+        raise ValueError(f"--trainer is for the policies rainbow, rainbow-rollout and marl, not {args.policy}")
     if args.hint_bonus and args.policy != "rainbow":
         raise ValueError(f"--hint-bonus is for the rainbow policy, not {args.policy}")
     if not args.hint_bonus >= 0:
@@ -636,7 +686,7 @@ def main(args: Args) -> dict:
         raise ValueError(f"--out {args.out}: a folder of other files; name a new folder or an earlier --out")
     for name in ("episodes.csv", "summary.json") + (("compare.json", "compare.md", "compare.png") if compared else ()):
         gridworld.check_output(os.path.join(args.out, name), "result", args.overwrite, "--out")  # before the minutes
-    runners = {p: _runner(args if p == args.policy else replace(args, policy=p, checkpoint=None), p)
+    runners = {p: _runner(args if p == args.policy else replace(args, policy=p, checkpoint=None, trainer=None), p)
                for p in policies}  # every check and model load before anything runs
     episodes = scenarios_from(args)
     filmed = _filmed(args, episodes) if args.video else []

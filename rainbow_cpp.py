@@ -25,7 +25,6 @@ network (kind, widths, frame stack, observation scales) from the file they load.
 """
 from __future__ import annotations
 
-import contextlib
 import datetime
 import fcntl
 import hashlib
@@ -86,10 +85,6 @@ class Args:
     """the Weights & Biases team of --track (default: your own account)"""
     torch_deterministic: bool = True
     """torch.backends.cudnn.deterministic (as CleanRL); no effect on the CPU"""
-    compile: bool = False
-    """torch.compile the two networks (opt-in: minutes of compiling first; measured in docs/rainbow_cpp.md)"""
-    amp: bool = False
-    """bf16 autocast of the learning forward passes (opt-in; measured in docs/rainbow_cpp.md)"""
     quiet: bool = False
     """no progress bar or periodic step lines (evaluations and the end are still printed)"""
     capture_video: bool = False
@@ -181,19 +176,10 @@ class Args:
     td_weight: float = 1.0
     """weight of the TD loss (0: imitation alone, the margin-only arm of the ablation in docs/rainbow_cpp.md);
     priorities still follow the TD errors"""
-    margin_loss_end: float | None = None
-    """the margin loss's weight after --margin-decay-steps, reached linearly from --margin-loss (default: no
-    schedule), so TD can refine what imitation taught"""
-    margin_decay_steps: int = 0
-    """environment steps (of the whole run, resumed ones included) over which the margin loss's weight moves
-    from --margin-loss to --margin-loss-end"""
     hint: bool = False
     """give the network the deterministic heuristic's move (a one-hot beside the extras, computed by the agent
     from its own observation; not in the dissertation), so copying the heuristic is trivial and capacity goes
     to the states where its move is a mistake; a model trained with it keeps it"""
-    departure_weight: float = 1.0
-    """with --hint, the weight in the margin loss of a state whose label differs from the hint (the teacher's
-    rare departures from the heuristic: ~1% of the rollout's labels)"""
     heuristic_random_ties: bool = False
     """the heuristic breaks ties at random (§6.3.1) instead of by the first cell; the random walk
     overlaps ~4x more (README), so it makes a poorer teacher"""
@@ -214,19 +200,6 @@ class Args:
     policy-rollout (the one-step rollout of the greedy network itself with the heuristic fallback, a copy refreshed
     every --policy-refresh steps: expert iteration; tens of milliseconds a label). The evaluation's stuck fallback
     stays the heuristic"""
-    teacher_view: str = "full"
-    """--teacher rollout in sensor stages: plan on the true map (full: a privileged teacher, "learning by cheating",
-    while the student sees only its sensor) or on the agent's known map (known: unknown cells free points of interest,
-    evaluate.py's frontier-rollout); the same in full-information stages. The heuristic always acts on the known map"""
-    policy_refresh: int = 10_000
-    """--teacher policy-rollout: environment steps between copies of the online network into the rollout's policy"""
-    rollout_symmetries: int = 1
-    """--teacher rollout: a move's cost is its mean over this many mirrored or turned copies of the world (1, 2, 4, 8;
-    GridWorldCore.rollout_actions): labels without the heuristic's arbitrary row-major tie order, at that many
-    times the cost"""
-    label_fraction: float = 1.0
-    """--teacher rollout or policy-rollout: the chance that a world the agent acts in gets its margin label from the rollout (the
-    others get the heuristic's), to bound the cost; worlds the teacher acts in always use the rollout"""
     eval_every: int = 25_000
     """environment steps between evaluations on held-out cpp_eval maps (0: none)"""
     eval_maps: int = 32
@@ -254,7 +227,8 @@ class Args:
 # character: each script stays self-contained, and tests/test_trainers_shared.py fails on any drift.
 SCRIPT = os.path.splitext(os.path.basename(__file__))[0]
 HERE = os.path.dirname(os.path.abspath(__file__))
-OBSERVATION = gridworld.agent_observation_space(gridworld.EnvConfig())  # one agent's deep observation (§6.3.2)
+DEEP = {"view_size": gridworld.VIEW_SIZE}  # the deep observation's settings (EnvConfig fields): change it here
+OBSERVATION = gridworld.agent_observation_space(gridworld.EnvConfig(**DEEP))  # one agent's deep observation (§6.3.2)
 VIEW = OBSERVATION["map"].shape[-1]  # edge of the map window centred on the agent
 CHANNELS = OBSERVATION["map"].shape[0]  # points of interest, covered, obstacles, agents
 LAST_ACTIONS = OBSERVATION["last_action"].shape[0]  # one-hot, WAIT included
@@ -418,7 +392,7 @@ def observation_settings(spec: dict) -> dict:
     """The EnvConfig fields of the observation a network needs, from its spec (a network() record, network_of's,
     or a run's flags as a dict): {"observation": "deep"}, or multiscale with its scales."""
     if spec.get("network", "fig6.8") == "fig6.8":
-        return {"observation": "deep"}
+        return {"observation": "deep", **DEEP}
     return {"observation": "multiscale", **{k: spec[k] for k in SCALE_KEYS}}
 
 
@@ -432,10 +406,6 @@ def device_of(q: nn.Module) -> torch.device:
     """Where a network's weights live (the CPU for one without any)."""
     return next(q.parameters(), torch.empty(0)).device
 
-
-def autocast(on: bool, device: torch.device):
-    """bf16 autocast of the forward passes (--amp), or nothing at all."""
-    return torch.autocast(device.type, dtype=torch.bfloat16) if on else contextlib.nullcontext()
 
 
 # ----------------------------------------------------------------------------- replay memory
@@ -618,14 +588,12 @@ class Replay:
               labels: bool = False) -> tuple[np.ndarray, list[torch.Tensor]]:
         """sample() as tensors on `device`: the slots, then [maps, extras, next maps, next extras, actions,
         returns, bootstrap factors, importance weights (float32)] and with `labels` the teacher's actions
-        (int64, -1: none), then with a hint the heuristic's moves (int64). One copy to a GPU per batch (hand_over);
+        (int64, -1: none). One copy to a GPU per batch (hand_over);
         on the CPU the sampled arrays themselves."""
         slot, (m, e), a, ret, (nm, ne), boot, weight = self.sample(n, beta, rng)
         arrays = [m, e, nm, ne, a, ret, boot, weight.astype(np.float32)]
         if labels:
             arrays.append(self.label[slot].astype(np.int64))
-            if self.hint is not None:
-                arrays.append(self.hint[slot].astype(np.int64))
         tensors, self.pinned = hand_over(arrays, device, self.pinned)
         return slot, tensors
 
@@ -711,53 +679,40 @@ def stuck(since_new: np.ndarray, moved: np.ndarray, size: np.ndarray) -> np.ndar
     return (since_new > size) | ((since_new >= 5) & (moved <= 2))
 
 
-def large_margin_loss(q_all: torch.Tensor, label: torch.Tensor, margin: float,
-                      weight: torch.Tensor | None = None) -> torch.Tensor:
+def large_margin_loss(q_all: torch.Tensor, label: torch.Tensor, margin: float) -> torch.Tensor:
     """DQfD's J_E = max_a [Q(s, a) + l(a_E, a)] - Q(s, a_E), l = margin except at a_E, averaged
-    over the states with a label (label -1: none), each weighted by `weight` when given."""
-    has = (label >= 0).float() * (1.0 if weight is None else weight)
+    over the states with a label (label -1: none)."""
+    has = (label >= 0).float()
     a_e = label.clamp(min=0)
     beaten = (q_all + margin * (1 - F.one_hot(a_e, q_all.shape[1]))).max(1).values
     return ((beaten - q_all.gather(1, a_e[:, None])[:, 0]) * has).sum() / has.sum().clamp(min=1e-9)
 
 
-def margin_weight(args: Args, step: int) -> float:
-    """The margin loss's weight at a step: --margin-loss, moved linearly to --margin-loss-end over
-    --margin-decay-steps (then held), so TD can refine what imitation taught."""
-    end = args.margin_loss if args.margin_loss_end is None else args.margin_loss_end
-    done = 1.0 if args.margin_decay_steps == 0 else min(1.0, step / args.margin_decay_steps)
-    return args.margin_loss + (end - args.margin_loss) * done
-
-
 def labelled(args: Args) -> bool:
     """Whether replayed states need the teacher's labels: some margin loss at some step."""
-    return bool(args.margin_loss or args.margin_loss_end)
+    return bool(args.margin_loss)
 
 
 def learn(q: QNetwork, target: QNetwork, optimizer: torch.optim.Optimizer, replay: Replay, args: Args,
-          beta: float, rng: np.random.Generator, margin_loss_weight: float | None = None,
+          beta: float, rng: np.random.Generator,
           diagnose: bool = False) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None, dict | None]:
     """One gradient step on a prioritized batch, on the networks' device (the batch handed over in one copy):
-    the double-DQN TD loss (plus the margin loss at `margin_loss_weight`, default --margin-loss; with a hint its
-    departures, labels other than the heuristic's move, weigh --departure-weight), new priorities, the soft
-    target update (eq. 6.19) and fresh noise; with --amp the forward passes run under bf16 autocast, the losses
-    in float32. Returns the TD loss, the mean Q(s, a) and the margin loss (None without labels), detached, and with
-    `diagnose` the update's diagnostics (None without)."""
+    the double-DQN TD loss (plus --margin-loss times the margin loss), new priorities, the soft target update
+    (eq. 6.19) and fresh noise. Returns the TD loss, the mean Q(s, a) and the margin loss (None without labels),
+    detached, and with `diagnose` the update's diagnostics (None without)."""
     device = device_of(q)
     idx, (m_, e_, nm, ne, a_, ret, boot, weight, *label) = replay.batch(args.batch_size, beta, rng, device,
                                                                         labels=labelled(args))
-    with torch.no_grad(), autocast(args.amp, device):  # double DQN: the online net picks, the target net values
+    with torch.no_grad():  # double DQN: the online net picks, the target net values
         best = q(nm, ne).argmax(1, keepdim=True)
-        y = ret + boot * target(nm, ne).float().gather(1, best)[:, 0]
-    with autocast(args.amp, device):
-        q_all = q(m_, e_).float()
+        y = ret + boot * target(nm, ne).gather(1, best)[:, 0]
+    q_all = q(m_, e_)
     q_sa = q_all.gather(1, a_[:, None])[:, 0]
     td_loss = (weight * F.smooth_l1_loss(q_sa, y, reduction="none")).mean()
     loss, margin_loss = args.td_weight * td_loss, None
     if label:
-        departed = None if len(label) == 1 else 1 + (args.departure_weight - 1) * (label[0] != label[1]).float()
-        margin_loss = large_margin_loss(q_all, label[0], args.margin, departed)
-        loss = loss + (args.margin_loss if margin_loss_weight is None else margin_loss_weight) * margin_loss
+        margin_loss = large_margin_loss(q_all, label[0], args.margin)
+        loss = loss + args.margin_loss * margin_loss
     optimizer.zero_grad()
     loss.backward()
     grad_norm = nn.utils.clip_grad_norm_(q.parameters(), args.max_grad_norm)
@@ -899,8 +854,8 @@ def network_of(blob: dict, path: str) -> dict:
     expected = ("deep", VIEW) if kind == "fig6.8" else ("multiscale", spec["scale_view"])
     if (spec["observation"], spec["view"], spec["extras"]) != (*expected, EXTRAS):
         raise ValueError(f"{path}: a {kind} network for the {spec['observation']} observation, view {spec['view']}, "
-                         f"{spec['extras']} extras a frame; gridworld gives it {expected[0]}, view {expected[1]}, "
-                         f"{EXTRAS} extras")
+                         f"{spec['extras']} extras a frame; {SCRIPT}.py gives it {expected[0]}, view {expected[1]}, "
+                         f"{EXTRAS} extras (a changed copy's model: evaluate.py --trainer COPY.py)")
     return spec
 
 
@@ -908,14 +863,20 @@ def policy_from(blob: dict, path: str) -> QNetwork:
     """The network of a file read by read_model, with its mean weights and noise off."""
     spec = network_of(blob, path)
     q = build_network(spec, 0.0)
+    weights = blob.get("weights", blob.get("model"))
+    mean = {k: tuple(v.shape) for k, v in q.state_dict().items() if "sigma" not in k and "eps" not in k}
+    held = {k: tuple(v.shape) for k, v in weights.items() if "sigma" not in k and "eps" not in k}
+    differ = sorted([f"{k} {held[k]} in the file, {mean[k]} here" for k in mean.keys() & held.keys() if mean[k] != held[k]]
+                    + [f"{k} only here" for k in mean.keys() - held.keys()]
+                    + [f"{k} only in the file" for k in held.keys() - mean.keys()])
+    if differ:
+        raise ValueError(f"{path}: weights do not match {SCRIPT}.py's network ({'; '.join(differ[:3])}"
+                         f"{f' and {len(differ) - 3} more' if len(differ) > 3 else ''}); a model of a changed copy of "
+                         "the trainer: evaluate.py --trainer COPY.py")
     try:
-        missing, unexpected = q.load_state_dict({k: v.float() for k, v in blob.get("weights", blob.get("model")).items()},
-                                                strict=False)
+        q.load_state_dict({k: v.float() for k, v in weights.items()}, strict=False)
     except UNREADABLE as e:
-        raise ValueError(f"{path}: weights do not match this network "
-                         f"({reason(e)})") from None
-    if unexpected or any("sigma" not in k and "eps" not in k for k in missing):
-        raise ValueError(f"{path}: weights do not match this network")
+        raise ValueError(f"{path}: weights do not match this network ({reason(e)})") from None
     if not all(torch.isfinite(v).all() for v in q.state_dict().values()):
         raise ValueError(f"{path}: its weights are not finite (the run that made it diverged)")
     q.reset_noise(False)
@@ -970,13 +931,9 @@ def check_flags(args: Args) -> None:
         if not getattr(args, name) > 0:
             raise ValueError(f"--{name.replace('_', '-')} must be > 0, got {getattr(args, name)}")
     for name in ("replay_ratio", "alpha", "sigma0", "margin_loss", "margin", "max_grad_norm", "time_limit",
-                 "margin_decay_steps", "departure_weight", "td_weight"):
+                 "td_weight"):
         if not getattr(args, name) >= 0:
             raise ValueError(f"--{name.replace('_', '-')} must be >= 0, got {getattr(args, name)}")
-    if args.margin_loss_end is not None and not args.margin_loss_end >= 0:
-        raise ValueError(f"--margin-loss-end must be >= 0, got {args.margin_loss_end}")
-    if args.departure_weight != 1 and not args.hint:
-        raise ValueError("--departure-weight needs --hint (a departure is a label other than the heuristic's move)")
     if args.export:  # before training, not at the first save
         if not args.export.endswith(".pt") or os.path.isdir(args.export):
             raise ValueError(f"--export must name a .pt file, got {args.export!r}")
@@ -1163,9 +1120,6 @@ def start_run(args: Args, n_stages: int) -> tuple:
         target.load_state_dict(target_state or q.state_dict())
     except UNREADABLE as e:
         raise ValueError(f"{checkpoint}: its target network does not fit this run ({reason(e)})") from None
-    if args.compile:
-        q.compile()
-        target.compile()
     return args, run_dir, q, target, optimizer, rng, progress, parent
 
 
@@ -1243,43 +1197,22 @@ def progress_bar(total: int, initial: int, quiet: bool) -> tqdm:
     return tqdm(total=total, initial=initial, unit="step", unit_scale=True, dynamic_ncols=True,
                 disable=quiet or not sys.stdout.isatty())
 # ============================================================================= end of the shared code
-TEACHERS = ("heuristic", "rollout", "policy-rollout")  # --teacher
-TEACHER_VIEWS = ("full", "known")  # --teacher-view
+TEACHERS = ("heuristic", "rollout")  # --teacher
 
 
 def check_teacher(args: Args) -> None:
-    """--teacher, --teacher-view and --label-fraction out of range are one-line errors."""
+    """--teacher out of range is a one-line error."""
     if args.teacher not in TEACHERS:
         raise ValueError(f"--teacher must be one of {', '.join(TEACHERS)}, got {args.teacher!r}")
-    if not 0.0 <= args.label_fraction <= 1.0:
-        raise ValueError(f"--label-fraction must be in [0, 1], got {args.label_fraction}")
-    if args.teacher_view not in TEACHER_VIEWS:
-        raise ValueError(f"--teacher-view must be one of {', '.join(TEACHER_VIEWS)}, got {args.teacher_view!r}")
-    if args.teacher_view != "full" and args.teacher != "rollout":
-        raise ValueError(f"--teacher-view {args.teacher_view} needs --teacher rollout (the heuristic acts on the known "
-                         "map, the policy on its observation)")
-    if args.policy_refresh < 1:
-        raise ValueError(f"--policy-refresh must be at least 1, got {args.policy_refresh}")
-    if args.rollout_symmetries not in (1, 2, 4, 8):
-        raise ValueError(f"--rollout-symmetries must be 1, 2, 4 or 8, got {args.rollout_symmetries}")
-    if args.rollout_symmetries > 1 and args.teacher != "rollout":
-        raise ValueError(f"--rollout-symmetries {args.rollout_symmetries} needs --teacher rollout")
 
 
-def rollout_labels(core: gridworld.GridWorldCore, label: np.ndarray, teach: np.ndarray, args: Args,
-                   rng: np.random.Generator, policy: nn.Module | None = None,
-                   stack: Stacker | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """--teacher rollout or policy-rollout: the heuristic's labels with the rollout's in the worlds the teacher acts
-    in and, with a margin loss, in a label_fraction of the others, one batched call; returns the labels and the
-    worlds the rollout labelled. policy-rollout needs the rollout's `policy` and the worlds' frame `stack`."""
-    need = teach | (labelled(args) & (rng.random(len(teach)) < args.label_fraction))
-    w = np.flatnonzero(need)
+def rollout_labels(core: gridworld.GridWorldCore, label: np.ndarray, teach: np.ndarray,
+                   args: Args) -> tuple[np.ndarray, np.ndarray]:
+    """--teacher rollout: the heuristic's labels with the rollout's in the worlds the teacher acts in and, with a
+    margin loss, in every world, one batched call; returns the labels and the worlds the rollout labelled."""
+    w = np.flatnonzero(teach | labelled(args))
     label = label.copy()
-    if args.teacher == "policy-rollout":
-        label[w] = policy_rollout_actions(core, w, policy, stack, args.heuristic_dead_ends, args.heuristic_far_first)
-    else:
-        label[w] = core.rollout_actions(w, args.heuristic_dead_ends, view=args.teacher_view,
-                                        far_first=args.heuristic_far_first, symmetries=args.rollout_symmetries)
+    label[w] = core.rollout_actions(w, args.heuristic_dead_ends, far_first=args.heuristic_far_first)
     return label, w
 
 
@@ -1321,7 +1254,7 @@ class Fallback:
 
 def policy_rollout_actions(core: gridworld.GridWorldCore, worlds: np.ndarray, policy: nn.Module, stack: Stacker,
                            dead_ends_first: bool = True, far_first: bool = False) -> np.ndarray:
-    """--teacher policy-rollout: the one-step rollout (Bertsekas) whose base is the greedy `policy` (noise off) with the
+    """The one-step rollout (Bertsekas) whose base is the greedy `policy` (noise off) with the
     heuristic fallback, for the given worlds (indices): each legal move is tried in a copy of the world (copy_worlds),
     the copies go on with the policy in lockstep from the world's frame stack, and the move whose copy covers every
     point of interest first wins (the policy's own move on ties, then N, S, W, E). Its labels are never worse than the
@@ -1386,6 +1319,7 @@ def policy_rollout_actions(core: gridworld.GridWorldCore, worlds: np.ndarray, po
 
 
 # ----------------------------------------------------------------------------- single-agent helpers
+
 def load_stages(args: Args) -> list[gridworld.EnvConfig]:
     if not 0.0 <= args.uncommon_patterns <= 1.0 or not 0.0 <= args.uncommon_max < 1.0:
         raise ValueError(f"--uncommon-patterns {args.uncommon_patterns} and --uncommon-max {args.uncommon_max}: "
@@ -1567,8 +1501,6 @@ def main(args: Args) -> None:
     replay_born = global_step  # a new (or resumed) memory refills for learning_starts steps before learning
     curve_clock = (global_step, time.time())  # steps/s between curve points leaves out their evaluation
     n_labels, label_time = 0, 0.0  # --teacher rollout: its labels and the seconds they took
-    policy = build_network(q.network(), args.sigma0).to(device) if args.teacher == "policy-rollout" else None
-    refreshed = global_step - args.policy_refresh  # --teacher policy-rollout: the greedy network's copy, made at once
     departures = np.zeros(3, np.int64)  # of the rollout's labels: departures from the heuristic, the network's agreeing
     latest = ""
     stop, previous_handlers = stop_signals()
@@ -1583,10 +1515,6 @@ def main(args: Args) -> None:
             stage_index += 1
             core.configure(stage_config(stages[stage_index], args))
         # ALGO LOGIC: put action logic here
-        if policy is not None and global_step - refreshed >= args.policy_refresh:
-            policy.load_state_dict(q.state_dict())
-            policy.reset_noise(False)
-            refreshed = global_step
         with torch.no_grad():
             action = q(*to_torch(*stack.get(), device)).argmax(1).cpu().numpy()
         moved = np.abs(core.agent_cells()[:, 0] - history[0]).sum(1)
@@ -1598,7 +1526,7 @@ def main(args: Args) -> None:
                                             args.heuristic_far_first)[:, 0])
         if args.teacher != "heuristic" and label is not None:
             tick = time.perf_counter()
-            heuristic_label, (label, w) = label, rollout_labels(core, label, teach, args, rng, policy, stack)
+            heuristic_label, (label, w) = label, rollout_labels(core, label, teach, args)
             n_labels, label_time = n_labels + len(w), label_time + time.perf_counter() - tick
             off = w[label[w] != heuristic_label[w]]
             departures += len(w), len(off), int((action[off] == label[off]).sum())
@@ -1664,7 +1592,7 @@ def main(args: Args) -> None:
             beta = args.beta_start + (1 - args.beta_start) * min(1.0, global_step / total)
             diagnose = global_step - last_loss_log >= 1000  # the first update after each 1000 steps
             td_loss, q_values, margin_loss, diagnostics = learn(q, target, optimizer, replay, args, beta, rng,
-                                                                margin_weight(args, global_step), diagnose)
+                                                                diagnose)
             if diagnose:
                 last_loss_log = global_step
                 writer.add_scalar("losses/td_loss", td_loss.item(), global_step)

@@ -26,7 +26,6 @@ scratch) or the checkpoint it resumes. --cuda, --threads, --amp and --compile as
 """
 from __future__ import annotations
 
-import contextlib
 import datetime
 import fcntl
 import hashlib
@@ -87,10 +86,6 @@ class Args:
     """the Weights & Biases team of --track (default: your own account)"""
     torch_deterministic: bool = True
     """torch.backends.cudnn.deterministic (as CleanRL); no effect on the CPU"""
-    compile: bool = False
-    """torch.compile the two networks (opt-in: minutes of compiling first; measured in docs/rainbow_cpp.md)"""
-    amp: bool = False
-    """bf16 autocast of the learning forward passes (opt-in; measured in docs/rainbow_cpp.md)"""
     quiet: bool = False
     """no progress bar or periodic step lines (evaluations and the end are still printed)"""
     capture_video: bool = False
@@ -186,19 +181,10 @@ class Args:
     td_weight: float = 1.0
     """weight of the TD loss (0: imitation alone, the margin-only arm of the ablation in docs/rainbow_cpp.md);
     priorities still follow the TD errors"""
-    margin_loss_end: float | None = None
-    """the margin loss's weight after --margin-decay-steps, reached linearly from --margin-loss (default: no
-    schedule), so TD can refine what imitation taught"""
-    margin_decay_steps: int = 0
-    """environment steps (of the whole run, resumed ones included) over which the margin loss's weight moves
-    from --margin-loss to --margin-loss-end"""
     hint: bool = False
     """give the network the deterministic heuristic's move (a one-hot beside the extras, computed by the agent
     from its own observation; not in the dissertation), so copying the heuristic is trivial and capacity goes
     to the states where its move is a mistake; a model trained with it keeps it"""
-    departure_weight: float = 1.0
-    """with --hint, the weight in the margin loss of a state whose label differs from the hint (the teacher's
-    rare departures from the heuristic: ~1% of the rollout's labels)"""
     heuristic_random_ties: bool = False
     """the heuristic breaks ties at random (§6.3.1) instead of by the first cell"""
     teacher: str = "heuristic"
@@ -206,9 +192,6 @@ class Args:
     heuristic (the navigation heuristic with claims, as set by the flags beside it) or rollout (the multiagent
     rollout of greedy-dead-ends with claims, GridWorldCore.team_rollout_actions: each agent's move in index order,
     the others on the heuristic; planned on the full state; ~0.1 s a world at sizes 10-30, see docs/rainbow_marl.md)"""
-    label_fraction: float = 1.0
-    """--teacher rollout: the chance that a world the agents act in gets its margin labels from the rollout (the
-    others get the heuristic's), to bound the cost; worlds where the teacher acts always use the rollout"""
     heuristic_dead_ends: bool = True
     """of equally near targets the heuristic takes the one with the fewest uncovered neighbours
     first (Warnsdorff's rule, not in the dissertation; a better teacher and fallback);
@@ -238,7 +221,8 @@ class Args:
 # character: each script stays self-contained, and tests/test_trainers_shared.py fails on any drift.
 SCRIPT = os.path.splitext(os.path.basename(__file__))[0]
 HERE = os.path.dirname(os.path.abspath(__file__))
-OBSERVATION = gridworld.agent_observation_space(gridworld.EnvConfig())  # one agent's deep observation (§6.3.2)
+DEEP = {"view_size": gridworld.VIEW_SIZE}  # the deep observation's settings (EnvConfig fields): change it here
+OBSERVATION = gridworld.agent_observation_space(gridworld.EnvConfig(**DEEP))  # one agent's deep observation (§6.3.2)
 VIEW = OBSERVATION["map"].shape[-1]  # edge of the map window centred on the agent
 CHANNELS = OBSERVATION["map"].shape[0]  # points of interest, covered, obstacles, agents
 LAST_ACTIONS = OBSERVATION["last_action"].shape[0]  # one-hot, WAIT included
@@ -402,7 +386,7 @@ def observation_settings(spec: dict) -> dict:
     """The EnvConfig fields of the observation a network needs, from its spec (a network() record, network_of's,
     or a run's flags as a dict): {"observation": "deep"}, or multiscale with its scales."""
     if spec.get("network", "fig6.8") == "fig6.8":
-        return {"observation": "deep"}
+        return {"observation": "deep", **DEEP}
     return {"observation": "multiscale", **{k: spec[k] for k in SCALE_KEYS}}
 
 
@@ -416,10 +400,6 @@ def device_of(q: nn.Module) -> torch.device:
     """Where a network's weights live (the CPU for one without any)."""
     return next(q.parameters(), torch.empty(0)).device
 
-
-def autocast(on: bool, device: torch.device):
-    """bf16 autocast of the forward passes (--amp), or nothing at all."""
-    return torch.autocast(device.type, dtype=torch.bfloat16) if on else contextlib.nullcontext()
 
 
 # ----------------------------------------------------------------------------- replay memory
@@ -602,14 +582,12 @@ class Replay:
               labels: bool = False) -> tuple[np.ndarray, list[torch.Tensor]]:
         """sample() as tensors on `device`: the slots, then [maps, extras, next maps, next extras, actions,
         returns, bootstrap factors, importance weights (float32)] and with `labels` the teacher's actions
-        (int64, -1: none), then with a hint the heuristic's moves (int64). One copy to a GPU per batch (hand_over);
+        (int64, -1: none). One copy to a GPU per batch (hand_over);
         on the CPU the sampled arrays themselves."""
         slot, (m, e), a, ret, (nm, ne), boot, weight = self.sample(n, beta, rng)
         arrays = [m, e, nm, ne, a, ret, boot, weight.astype(np.float32)]
         if labels:
             arrays.append(self.label[slot].astype(np.int64))
-            if self.hint is not None:
-                arrays.append(self.hint[slot].astype(np.int64))
         tensors, self.pinned = hand_over(arrays, device, self.pinned)
         return slot, tensors
 
@@ -695,53 +673,40 @@ def stuck(since_new: np.ndarray, moved: np.ndarray, size: np.ndarray) -> np.ndar
     return (since_new > size) | ((since_new >= 5) & (moved <= 2))
 
 
-def large_margin_loss(q_all: torch.Tensor, label: torch.Tensor, margin: float,
-                      weight: torch.Tensor | None = None) -> torch.Tensor:
+def large_margin_loss(q_all: torch.Tensor, label: torch.Tensor, margin: float) -> torch.Tensor:
     """DQfD's J_E = max_a [Q(s, a) + l(a_E, a)] - Q(s, a_E), l = margin except at a_E, averaged
-    over the states with a label (label -1: none), each weighted by `weight` when given."""
-    has = (label >= 0).float() * (1.0 if weight is None else weight)
+    over the states with a label (label -1: none)."""
+    has = (label >= 0).float()
     a_e = label.clamp(min=0)
     beaten = (q_all + margin * (1 - F.one_hot(a_e, q_all.shape[1]))).max(1).values
     return ((beaten - q_all.gather(1, a_e[:, None])[:, 0]) * has).sum() / has.sum().clamp(min=1e-9)
 
 
-def margin_weight(args: Args, step: int) -> float:
-    """The margin loss's weight at a step: --margin-loss, moved linearly to --margin-loss-end over
-    --margin-decay-steps (then held), so TD can refine what imitation taught."""
-    end = args.margin_loss if args.margin_loss_end is None else args.margin_loss_end
-    done = 1.0 if args.margin_decay_steps == 0 else min(1.0, step / args.margin_decay_steps)
-    return args.margin_loss + (end - args.margin_loss) * done
-
-
 def labelled(args: Args) -> bool:
     """Whether replayed states need the teacher's labels: some margin loss at some step."""
-    return bool(args.margin_loss or args.margin_loss_end)
+    return bool(args.margin_loss)
 
 
 def learn(q: QNetwork, target: QNetwork, optimizer: torch.optim.Optimizer, replay: Replay, args: Args,
-          beta: float, rng: np.random.Generator, margin_loss_weight: float | None = None,
+          beta: float, rng: np.random.Generator,
           diagnose: bool = False) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None, dict | None]:
     """One gradient step on a prioritized batch, on the networks' device (the batch handed over in one copy):
-    the double-DQN TD loss (plus the margin loss at `margin_loss_weight`, default --margin-loss; with a hint its
-    departures, labels other than the heuristic's move, weigh --departure-weight), new priorities, the soft
-    target update (eq. 6.19) and fresh noise; with --amp the forward passes run under bf16 autocast, the losses
-    in float32. Returns the TD loss, the mean Q(s, a) and the margin loss (None without labels), detached, and with
-    `diagnose` the update's diagnostics (None without)."""
+    the double-DQN TD loss (plus --margin-loss times the margin loss), new priorities, the soft target update
+    (eq. 6.19) and fresh noise. Returns the TD loss, the mean Q(s, a) and the margin loss (None without labels),
+    detached, and with `diagnose` the update's diagnostics (None without)."""
     device = device_of(q)
     idx, (m_, e_, nm, ne, a_, ret, boot, weight, *label) = replay.batch(args.batch_size, beta, rng, device,
                                                                         labels=labelled(args))
-    with torch.no_grad(), autocast(args.amp, device):  # double DQN: the online net picks, the target net values
+    with torch.no_grad():  # double DQN: the online net picks, the target net values
         best = q(nm, ne).argmax(1, keepdim=True)
-        y = ret + boot * target(nm, ne).float().gather(1, best)[:, 0]
-    with autocast(args.amp, device):
-        q_all = q(m_, e_).float()
+        y = ret + boot * target(nm, ne).gather(1, best)[:, 0]
+    q_all = q(m_, e_)
     q_sa = q_all.gather(1, a_[:, None])[:, 0]
     td_loss = (weight * F.smooth_l1_loss(q_sa, y, reduction="none")).mean()
     loss, margin_loss = args.td_weight * td_loss, None
     if label:
-        departed = None if len(label) == 1 else 1 + (args.departure_weight - 1) * (label[0] != label[1]).float()
-        margin_loss = large_margin_loss(q_all, label[0], args.margin, departed)
-        loss = loss + (args.margin_loss if margin_loss_weight is None else margin_loss_weight) * margin_loss
+        margin_loss = large_margin_loss(q_all, label[0], args.margin)
+        loss = loss + args.margin_loss * margin_loss
     optimizer.zero_grad()
     loss.backward()
     grad_norm = nn.utils.clip_grad_norm_(q.parameters(), args.max_grad_norm)
@@ -883,8 +848,8 @@ def network_of(blob: dict, path: str) -> dict:
     expected = ("deep", VIEW) if kind == "fig6.8" else ("multiscale", spec["scale_view"])
     if (spec["observation"], spec["view"], spec["extras"]) != (*expected, EXTRAS):
         raise ValueError(f"{path}: a {kind} network for the {spec['observation']} observation, view {spec['view']}, "
-                         f"{spec['extras']} extras a frame; gridworld gives it {expected[0]}, view {expected[1]}, "
-                         f"{EXTRAS} extras")
+                         f"{spec['extras']} extras a frame; {SCRIPT}.py gives it {expected[0]}, view {expected[1]}, "
+                         f"{EXTRAS} extras (a changed copy's model: evaluate.py --trainer COPY.py)")
     return spec
 
 
@@ -892,14 +857,20 @@ def policy_from(blob: dict, path: str) -> QNetwork:
     """The network of a file read by read_model, with its mean weights and noise off."""
     spec = network_of(blob, path)
     q = build_network(spec, 0.0)
+    weights = blob.get("weights", blob.get("model"))
+    mean = {k: tuple(v.shape) for k, v in q.state_dict().items() if "sigma" not in k and "eps" not in k}
+    held = {k: tuple(v.shape) for k, v in weights.items() if "sigma" not in k and "eps" not in k}
+    differ = sorted([f"{k} {held[k]} in the file, {mean[k]} here" for k in mean.keys() & held.keys() if mean[k] != held[k]]
+                    + [f"{k} only here" for k in mean.keys() - held.keys()]
+                    + [f"{k} only in the file" for k in held.keys() - mean.keys()])
+    if differ:
+        raise ValueError(f"{path}: weights do not match {SCRIPT}.py's network ({'; '.join(differ[:3])}"
+                         f"{f' and {len(differ) - 3} more' if len(differ) > 3 else ''}); a model of a changed copy of "
+                         "the trainer: evaluate.py --trainer COPY.py")
     try:
-        missing, unexpected = q.load_state_dict({k: v.float() for k, v in blob.get("weights", blob.get("model")).items()},
-                                                strict=False)
+        q.load_state_dict({k: v.float() for k, v in weights.items()}, strict=False)
     except UNREADABLE as e:
-        raise ValueError(f"{path}: weights do not match this network "
-                         f"({reason(e)})") from None
-    if unexpected or any("sigma" not in k and "eps" not in k for k in missing):
-        raise ValueError(f"{path}: weights do not match this network")
+        raise ValueError(f"{path}: weights do not match this network ({reason(e)})") from None
     if not all(torch.isfinite(v).all() for v in q.state_dict().values()):
         raise ValueError(f"{path}: its weights are not finite (the run that made it diverged)")
     q.reset_noise(False)
@@ -954,13 +925,9 @@ def check_flags(args: Args) -> None:
         if not getattr(args, name) > 0:
             raise ValueError(f"--{name.replace('_', '-')} must be > 0, got {getattr(args, name)}")
     for name in ("replay_ratio", "alpha", "sigma0", "margin_loss", "margin", "max_grad_norm", "time_limit",
-                 "margin_decay_steps", "departure_weight", "td_weight"):
+                 "td_weight"):
         if not getattr(args, name) >= 0:
             raise ValueError(f"--{name.replace('_', '-')} must be >= 0, got {getattr(args, name)}")
-    if args.margin_loss_end is not None and not args.margin_loss_end >= 0:
-        raise ValueError(f"--margin-loss-end must be >= 0, got {args.margin_loss_end}")
-    if args.departure_weight != 1 and not args.hint:
-        raise ValueError("--departure-weight needs --hint (a departure is a label other than the heuristic's move)")
     if args.export:  # before training, not at the first save
         if not args.export.endswith(".pt") or os.path.isdir(args.export):
             raise ValueError(f"--export must name a .pt file, got {args.export!r}")
@@ -1147,9 +1114,6 @@ def start_run(args: Args, n_stages: int) -> tuple:
         target.load_state_dict(target_state or q.state_dict())
     except UNREADABLE as e:
         raise ValueError(f"{checkpoint}: its target network does not fit this run ({reason(e)})") from None
-    if args.compile:
-        q.compile()
-        target.compile()
     return args, run_dir, q, target, optimizer, rng, progress, parent
 
 
@@ -1234,20 +1198,17 @@ TEACHERS = ("heuristic", "rollout")  # --teacher
 
 
 def check_teacher(args: Args) -> None:
-    """--teacher and --label-fraction out of range are one-line errors."""
+    """--teacher out of range is a one-line error."""
     if args.teacher not in TEACHERS:
         raise ValueError(f"--teacher must be one of {', '.join(TEACHERS)}, got {args.teacher!r}")
-    if not 0.0 <= args.label_fraction <= 1.0:
-        raise ValueError(f"--label-fraction must be in [0, 1], got {args.label_fraction}")
 
 
-def team_rollout_labels(core: gridworld.GridWorldCore, label: np.ndarray, teach: np.ndarray, args: Args,
-                        rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+def team_rollout_labels(core: gridworld.GridWorldCore, label: np.ndarray, teach: np.ndarray,
+                        args: Args) -> tuple[np.ndarray, np.ndarray]:
     """--teacher rollout: the heuristic's (B, N) labels with the multiagent rollout's in the worlds where the teacher
-    acts for some agent and, with a margin loss, in a label_fraction of the others, one batched team_rollout_actions
-    call; returns the labels and the worlds the rollout labelled."""
-    need = teach.any(1) | (labelled(args) & (rng.random(len(teach)) < args.label_fraction))
-    w = np.flatnonzero(need)
+    acts for some agent and, with a margin loss, in every world, one batched team_rollout_actions call; returns the
+    labels and the worlds the rollout labelled."""
+    w = np.flatnonzero(teach.any(1) | labelled(args))
     label = label.copy()
     label[w] = core.team_rollout_actions(w, args.heuristic_dead_ends, far_first=args.heuristic_far_first)
     return label, w
@@ -1455,7 +1416,7 @@ def main(args: Args) -> None:
                                             args.heuristic_far_first).ravel())
         if args.teacher == "rollout" and label is not None:
             tick = time.perf_counter()
-            label, w = team_rollout_labels(core, label.reshape(B, N), teach.reshape(B, N), args, rng)
+            label, w = team_rollout_labels(core, label.reshape(B, N), teach.reshape(B, N), args)
             label = label.ravel()
             n_labels, label_time = n_labels + len(w), label_time + time.perf_counter() - tick
         if teach.any():  # a heuristic without a target (WAIT) leaves the agent its own move
@@ -1525,7 +1486,7 @@ def main(args: Args) -> None:
             beta = args.beta_start + (1 - args.beta_start) * min(1.0, global_step / total)
             diagnose = global_step - last_loss_log >= 1000  # the first update after each 1000 steps
             td_loss, q_values, margin_loss, diagnostics = learn(q, target, optimizer, replay, args, beta, rng,
-                                                                margin_weight(args, global_step), diagnose)
+                                                                diagnose)
             if diagnose:
                 last_loss_log = global_step
                 writer.add_scalar("losses/td_loss", td_loss.item(), global_step)

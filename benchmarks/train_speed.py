@@ -11,7 +11,6 @@ observation), on each device and number of torch threads:
   to the device, the double-DQN step, priorities, soft target update, fresh noise) at batch 32 and 128;
 - env steps/s of the real training loop (rainbow_cpp.main, every training feature on, 16 worlds) at replay
   ratio 4 and 8, timed as two runs of different length so that start-up and the heuristic's prefill cancel;
-- for the compact network on one thread, also with --amp and with --compile (ms per update);
 - the yardstick: Stable-Baselines3's DQN (benchmarks/requirements.txt) on GridWorld-v0 with the same network
   as a custom policy (its Q-network replaced by ours, the same frame stack, batch and train frequency, a soft
   target update every gradient step, no epsilon so that every step acts through the network), env steps/s
@@ -19,7 +18,7 @@ observation), on each device and number of torch threads:
 
 Prints a table and the issue's targets; --json PATH writes one row per measurement with the keys network,
 hidden, batch_size, threads, device, replay_ratio, ms_per_update, env_steps_per_s (null where a row does not
-measure it) plus trainer ("rainbow_cpp" or "sb3_dqn"), amp and compile.
+measure it) plus trainer ("rainbow_cpp" or "sb3_dqn").
 """
 from __future__ import annotations
 
@@ -62,8 +61,6 @@ class Args:
     size: int = 0
     """map edge of a stage of size x size maps with as many obstacles; 0: the default curriculum's first stage
     (what a plain `rainbow_cpp.py --total-steps N` trains on)"""
-    variants: bool = True
-    """also the compact network with --amp and with --compile (ms per update, one thread)"""
     sb3: bool = True
     """the Stable-Baselines3 DQN yardstick (compact network, replay ratio 4, batch 32, one thread)"""
     sb3_steps: int = 2000
@@ -98,11 +95,10 @@ def spec_of(network: str, hidden: int) -> rc.Args:
 
 
 def row(network, hidden, batch_size, threads, device, replay_ratio=None, ms_per_update=None, env_steps_per_s=None,
-        trainer="rainbow_cpp", amp=False, compile=False) -> dict:
+        trainer="rainbow_cpp") -> dict:
     return dict(network=network, hidden=hidden, batch_size=batch_size, threads=threads, device=device,
                 replay_ratio=replay_ratio, ms_per_update=None if ms_per_update is None else round(ms_per_update, 2),
-                env_steps_per_s=None if env_steps_per_s is None else round(env_steps_per_s, 1), trainer=trainer,
-                amp=amp, compile=compile)
+                env_steps_per_s=None if env_steps_per_s is None else round(env_steps_per_s, 1), trainer=trainer)
 
 
 # ----------------------------------------------------------------------------- ms per update
@@ -139,9 +135,6 @@ def ms_per_update(run: rc.Args, replay: rc.Replay, device: torch.device, repeats
     q, target = (rc.build_network(spec, run.sigma0).to(device) for _ in range(2))
     target.load_state_dict(q.state_dict())
     optimizer = torch.optim.Adam(q.parameters(), lr=run.learning_rate, eps=run.adam_eps, fused=True)
-    if run.compile:
-        q.compile()
-        target.compile()
     rng = np.random.default_rng(0)
     times = []
     for _ in range(3 + repeats):
@@ -239,8 +232,7 @@ def devices(args: Args) -> list[tuple[torch.device, int]]:
 
 
 def table(rows: list[dict]) -> str:
-    keys = ["trainer", "network", "hidden", "device", "threads", "batch_size", "replay_ratio", "amp", "compile",
-            "ms_per_update", "env_steps_per_s"]
+    keys = ["trainer", "network", "hidden", "device", "threads", "batch_size", "replay_ratio", "ms_per_update", "env_steps_per_s"]
     cells = [keys] + [["-" if r[k] is None else str(r[k]) for k in keys] for r in rows]
     widths = [max(len(c[i]) for c in cells) for i in range(len(keys))]
     return "\n".join("  ".join(c[i].rjust(widths[i]) for i in range(len(keys))) for c in cells)
@@ -252,7 +244,7 @@ def targets(rows: list[dict]) -> list[str]:
         return hits[0] if hits else None
 
     lines = []
-    one = dict(threads=1, device="cpu", trainer="rainbow_cpp", amp=False, compile=False)
+    one = dict(threads=1, device="cpu", trainer="rainbow_cpp")
     fig, small = (find(network=n, hidden=h, batch_size=32, replay_ratio=None, **one)
                   for n, h in (("fig6.8", 512), ("compact", 256)))
     if fig and small:
@@ -286,7 +278,7 @@ def main(args: Args) -> list[dict]:
         rows.append(r)
         shown = r["ms_per_update"] if r["ms_per_update"] is not None else r["env_steps_per_s"]
         print(f"  {r['trainer']} {r['network']}-{r['hidden']} {r['device']} x{r['threads']} batch {r['batch_size']} "
-              f"rr {r['replay_ratio']} amp {r['amp']} compile {r['compile']}: "
+              f"rr {r['replay_ratio']}: "
               f"{shown} {'ms/update' if r['ms_per_update'] is not None else 'env steps/s'}", flush=True)
 
     with tempfile.TemporaryDirectory() as workdir:
@@ -301,12 +293,6 @@ def main(args: Args) -> list[dict]:
                     ms = ms_per_update(rc.Args(**{**asdict(run), "batch_size": batch}), replay, device,
                                        max(4, args.repeats // 4) if fig and not args.quick else args.repeats)
                     add(row(network, hidden, batch, threads, device.type, ms_per_update=ms))
-                if args.variants and network == "compact" and threads == 1:
-                    for flag in ("amp", "compile"):
-                        for batch in args.batch_sizes:
-                            ms = ms_per_update(rc.Args(**{**asdict(run), "batch_size": batch, flag: True}), replay,
-                                               device, args.repeats)
-                            add(row(network, hidden, batch, threads, device.type, ms_per_update=ms, **{flag: True}))
                 for ratio in args.replay_ratios:
                     run_loop = rc.Args(**{**asdict(run), "replay_ratio": ratio, "threads": threads,
                                           "cuda": device.type == "cuda"})

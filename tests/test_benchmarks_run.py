@@ -30,7 +30,7 @@ TINY = {  # each ~2-15 s on one core; --cpu -1: the first CPU this process may u
     "team_rollout.py": ["--agents", "2", "--marl-every", "5000", "--structured-every", "0", "--cpu", "-1"],
     "tie_features.py": ["--worlds", "2", "--batches", "1", "--size", "6", "--min-size", "5", "--iterations", "5",
                         "--cpu", "-1"],
-    "train_speed.py": ["--quick", "--threads", "1", "--no-cuda", "--no-variants", "--no-sb3", "--batch-sizes", "32",
+    "train_speed.py": ["--quick", "--threads", "1", "--no-cuda", "--no-sb3", "--batch-sizes", "32",
                        "--replay-ratios", "4", "--learning-starts", "32", "--size", "6", "--steps", "16", "--repeats",
                        "1", "--json", "rows.json"],
 }

@@ -7,16 +7,12 @@
   its frames as they are (uint8, not bit-packed).
 - Exports record the network and the observation it needs; load_policy rebuilds the right class; a model whose
   observation settings disagree with the flags or a stage is a one-line error; loading is device-agnostic.
-- Each batch reaches the device in one copy (hand_over packs it into one buffer); --amp and --compile are
-  accepted and work on the CPU.
+- Each batch reaches the device in one copy (hand_over packs it into one buffer).
 """
 from __future__ import annotations
 
 import json
-import os
-import subprocess
 import sys
-import time
 from dataclasses import replace
 from pathlib import Path
 
@@ -328,7 +324,7 @@ def test_evaluate_policy_observes_as_the_network_needs(name):
     assert np.array_equal(wrong["steps"], right["steps"]) and np.array_equal(wrong["overlap"], right["overlap"])
 
 
-# ----------------------------------------------------------------------------- device hand-over, amp, compile
+# ----------------------------------------------------------------------------- device hand-over
 def test_hand_over_packs_a_batch_into_one_buffer():
     rng = np.random.default_rng(0)
     arrays = [rng.integers(0, 256, (4, 15, 11, 11)).astype(np.uint8), rng.random((4, 40), np.float32),
@@ -391,66 +387,14 @@ def filled_replay(seed=0) -> rc.Replay:
 def test_device_and_speed_flags_are_accepted(name):
     t = TRAINERS[name]
     args = tyro.cli(t.Args, args=["--network", "compact", "--no-cuda", "--threads", "1", "--replay-ratio", "4",
-                                  "--total-steps", "800", "--learning-starts", "400", "--amp", "--compile",
+                                  "--total-steps", "800", "--learning-starts", "400",
                                   "--no-torch-deterministic", "--conv-width", "16", "--scales", "2",
                                   "--scale-factor", "2", "--scale-view", "9"])
-    assert (args.network, args.cuda, args.threads, args.amp, args.compile, args.torch_deterministic) == (
-        "compact", False, 1, True, True, False)
+    assert (args.network, args.cuda, args.threads, args.torch_deterministic) == ("compact", False, 1, False)
     assert (args.conv_width, args.scales, args.scale_factor, args.scale_view, args.total_steps) == (16, 2, 2, 9, 800)
-    assert tyro.cli(t.Args, args=[]).cuda and not tyro.cli(t.Args, args=[]).amp  # CleanRL's --cuda default
+    assert tyro.cli(t.Args, args=[]).cuda  # CleanRL's --cuda default
     with pytest.raises(ValueError, match="--threads must be >= 0"):
         t.check_flags(replace(args, threads=-1))
-
-
-def test_amp_learns_under_bf16_autocast_on_the_cpu():
-    torch.manual_seed(0)
-    args = rc.with_network(rc.Args(network="compact", hidden=16, conv_width=8, amp=True), None, None)
-    q, target = (rc.build_network({**vars(args), "frames": 3}, 0.5) for _ in range(2))
-    optimizer = torch.optim.Adam(q.parameters(), lr=1e-3)
-    seen = []
-    hook = q.value[0].register_forward_hook(lambda m, i, o: seen.append(o.dtype))
-    td, q_values, _, _ = rc.learn(q, target, optimizer, filled_replay(), args, 0.4, np.random.default_rng(0))
-    hook.remove()
-    assert torch.bfloat16 in seen and td.dtype == torch.float32 and torch.isfinite(td) and torch.isfinite(q_values)
-
-
-def test_a_tiny_amp_run(tmp_path, monkeypatch, restore_sigint):
-    monkeypatch.chdir(tmp_path)
-    rc.main(tiny(rc, network="compact", conv_width=8, amp=True))
-    assert json.loads((tmp_path / "runs" / "t" / "rainbow_cpp.json").read_text())["args"]["amp"] is True
-
-
-COMPILE = """
-import time, torch, numpy as np, rainbow_cpp as rc
-t0 = time.time()
-q = rc.CompactQNetwork(2, 16, 0.5, 8, 2, 3, 7)
-eager = q(torch.zeros(3, 20, 7, 7, dtype=torch.uint8), torch.zeros(3, 27))
-q.compile()
-out = q(torch.zeros(3, 20, 7, 7, dtype=torch.uint8), torch.zeros(3, 27))
-assert out.shape == (3, 4) and torch.allclose(out, eager, atol=1e-5)
-assert set(q.state_dict()) == set(rc.CompactQNetwork(2, 16, 0.5, 8, 2, 3, 7).state_dict())  # keys as saved
-print(f"compiled in {time.time() - t0:.1f} s")
-"""
-
-
-def test_compile_makes_a_working_forward():
-    """--compile compiles the networks in place (state-dict keys unchanged); skipped where compiling a tiny
-    network takes longer than 20 s on the CPU."""
-    try:
-        done = subprocess.run([sys.executable, "-c", COMPILE], cwd=ROOT, capture_output=True, text=True, timeout=20,
-                              env={**os.environ, "OMP_NUM_THREADS": "1"})
-    except subprocess.TimeoutExpired:
-        pytest.skip("torch.compile of a tiny network takes over 20 s on this CPU")
-    assert done.returncode == 0, done.stderr[-2000:]
-
-
-def test_the_start_of_a_run_compiles_both_networks(tmp_path, monkeypatch):
-    monkeypatch.chdir(tmp_path)
-    compiled = []
-    monkeypatch.setattr(torch.nn.Module, "compile", lambda self, *a, **k: compiled.append(type(self).__name__))
-    start = time.time()
-    rc.start_run(tiny(rc, network="compact", conv_width=8, compile=True), 1)
-    assert compiled == ["CompactQNetwork", "CompactQNetwork"] and time.time() - start < 20
 
 
 # ----------------------------------------------------------------------------- replay bookkeeping, benchmark

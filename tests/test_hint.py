@@ -1,9 +1,8 @@
-"""Tests for --hint (the heuristic's move as a network input), --departure-weight and the margin-loss schedule.
+"""Tests for --hint (the heuristic's move as a network input) and the margin loss.
 
 - observe(hint=True) adds the deterministic heuristic's move, agent-major, the same the fallback would take;
   the replay stores it per frame and gives it back one-hot after the last frame's extras, and in batches.
-- The margin loss weighs departures (labels other than the hint) by hand-computed amounts; the schedule moves
-  linearly from --margin-loss to --margin-loss-end.
+- The margin loss by hand-computed amounts; labels are needed exactly when --margin-loss is on.
 - A model without a hint warm-starts into a hinted network with the very same Q values (zero hint weights).
 - A tiny hinted run with the rollout teacher exports a model that records the hint, and evaluate_policy and
   evaluate.py run it; bad flag combinations are one-line errors and write nothing.
@@ -74,14 +73,7 @@ def test_margin_loss_weights_by_hand():
     # state 0: the label leads by 1 >= margin 0.5: max(1, 0.5) - 1 = 0; state 1: max(0, 2 + 0.5) - 0 = 2.5;
     # state 2 has no label
     assert rc.large_margin_loss(q, label, 0.5).item() == pytest.approx(2.5 / 2)
-    assert rc.large_margin_loss(q, label, 0.5, torch.tensor([1.0, 3.0, 9.0])).item() == pytest.approx(3 * 2.5 / 4)
-
-
-def test_margin_schedule_by_hand():
-    a = rc.Args(margin_loss=10.0, margin_loss_end=2.0, margin_decay_steps=1000)
-    assert [rc.margin_weight(a, s) for s in (0, 250, 1000, 5000)] == [10.0, 8.0, 2.0, 2.0]
-    assert rc.margin_weight(rc.Args(margin_loss=3.0), 10 ** 6) == 3.0
-    assert rc.labelled(rc.Args(margin_loss=0.0, margin_loss_end=1.0)) and not rc.labelled(rc.Args())
+    assert rc.labelled(rc.Args(margin_loss=0.5)) and not rc.labelled(rc.Args())
 
 
 @pytest.mark.parametrize("network", ["fig6.8", "compact"])
@@ -149,10 +141,9 @@ def tiny(tmp_path, **kw) -> rc.Args:
 
 def test_a_hinted_run_exports_a_model_that_evaluates(tmp_path, monkeypatch, restore_sigint):
     monkeypatch.chdir(tmp_path)
-    rc.main(tiny(tmp_path, hint=True, teacher="rollout", departure_weight=5.0, margin_loss_end=0.5,
-                 margin_decay_steps=100))
+    rc.main(tiny(tmp_path, hint=True, teacher="rollout", margin_loss=0.5))
     info = json.loads((tmp_path / "m.json").read_text())
-    assert info["network"]["hint"] is True and info["args"]["departure_weight"] == 5.0
+    assert info["network"]["hint"] is True and info["args"]["teacher"] == "rollout"
     q = rc.load_policy(str(tmp_path / "m.pt"))
     assert q.hint
     maps = gw.load_dataset(str(ROOT / "maps" / "cpp_eval.npz"))[:3]
@@ -166,11 +157,9 @@ def test_a_hinted_run_exports_a_model_that_evaluates(tmp_path, monkeypatch, rest
         rc.main(replace(tiny(tmp_path, run_name="plain", total_steps=260), resume=True, hint=True))
 
 
-@pytest.mark.parametrize("kw, msg", [(dict(departure_weight=5.0), "--departure-weight needs --hint"),
-                                     (dict(margin_loss_end=-1.0), "--margin-loss-end must be >= 0"),
-                                     (dict(margin_decay_steps=-5), "--margin-decay-steps must be >= 0"),
+@pytest.mark.parametrize("kw, msg", [(dict(margin_loss=-1.0), "--margin-loss must be >= 0"),
                                      (dict(time_limit=-1.0), "--time-limit must be >= 0")])
-def test_bad_hint_and_schedule_flags_are_one_line_errors(tmp_path, monkeypatch, restore_sigint, kw, msg):
+def test_bad_margin_and_time_flags_are_one_line_errors(tmp_path, monkeypatch, restore_sigint, kw, msg):
     monkeypatch.chdir(tmp_path)
     with pytest.raises(ValueError, match=msg) as e:
         rc.main(tiny(tmp_path, **kw))

@@ -349,8 +349,8 @@ def test_teacher_and_fallback_use_the_dead_ends_flag(tmp_path, monkeypatch, rest
 
 # ----------------------------------------------------------------------------- --teacher rollout
 def test_team_rollout_labels_are_the_multiagent_rollout_where_needed():
-    """The worlds where the teacher acts, and a label_fraction of the others, get GridWorldCore.team_rollout_actions;
-    the rest keep the heuristic's labels."""
+    """The worlds where the teacher acts get GridWorldCore.team_rollout_actions, the rest keep the heuristic's labels;
+    with a margin loss every world gets the rollout's."""
     maps = gw.generate_scenarios(6, seed=4, size=7, number_obstacles=5, obstacles_random=True, number_agents=2)
     core = gw.GridWorldCore(gw.EnvConfig(load_state=True, load_random=False, number_agents=2), 6)
     core.configure(scenarios=maps)
@@ -358,27 +358,26 @@ def test_team_rollout_labels_are_the_multiagent_rollout_where_needed():
     heuristic = core.heuristic_actions(False, True)
     teach = np.zeros((6, 2), bool)
     teach[[1, 4], 0] = True
-    args = rm.Args(init_from="", teacher="rollout", label_fraction=0.0, margin_loss=1.0)
-    label, w = rm.team_rollout_labels(core, heuristic, teach, args, np.random.default_rng(0))
+    args = rm.Args(init_from="", teacher="rollout")
+    label, w = rm.team_rollout_labels(core, heuristic, teach, args)
     assert w.tolist() == [1, 4]
     assert np.array_equal(label[w], core.team_rollout_actions(w)) and np.array_equal(label[[0, 2, 3, 5]],
                                                                                    heuristic[[0, 2, 3, 5]])
     everywhere, w = rm.team_rollout_labels(core, heuristic, teach, rm.Args(init_from="", teacher="rollout",
-                                                                          margin_loss=1.0), np.random.default_rng(0))
+                                                                          margin_loss=1.0))
     assert w.tolist() == list(range(6)) and np.array_equal(everywhere, core.team_rollout_actions())
 
 
 def test_rollout_teacher_run_records_its_flags(tmp_path, monkeypatch, restore_sigint, capsys):
     monkeypatch.chdir(tmp_path)
-    rm.main(small_args(tmp_path, teacher="rollout", label_fraction=0.5, margin_loss=1.0, total_steps=300,
+    rm.main(small_args(tmp_path, teacher="rollout", margin_loss=1.0, total_steps=300,
                        eval_every=0, quiet=True))
     info = json.loads((tmp_path / "m.json").read_text())
-    assert info["args"]["teacher"] == "rollout" and info["args"]["label_fraction"] == 0.5
+    assert info["args"]["teacher"] == "rollout" and info["args"]["margin_loss"] == 1.0
     assert "rollout teacher:" in capsys.readouterr().out
 
 
-@pytest.mark.parametrize("kw, msg", [(dict(teacher="lkh"), "--teacher must be one of heuristic, rollout"),
-                                     (dict(label_fraction=2.0), r"--label-fraction must be in \[0, 1\]")])
+@pytest.mark.parametrize("kw, msg", [(dict(teacher="lkh"), "--teacher must be one of heuristic, rollout")])
 def test_bad_teacher_flags_are_one_line_errors(tmp_path, monkeypatch, restore_sigint, kw, msg):
     monkeypatch.chdir(tmp_path)
     with pytest.raises(ValueError, match=msg) as e:

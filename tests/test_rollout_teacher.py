@@ -1,11 +1,11 @@
 """Tests for the rollout teacher: GridWorldCore.rollout_actions (the one-step rollout of greedy-dead-ends, batched)
-and rainbow_cpp's --teacher rollout / --label-fraction.
+and rainbow_cpp's --teacher rollout.
 
 rollout_actions: beats the heuristic's first move on a hand-made map, equals classical_cpp.rollout_many's first
 move on random maps (fresh and part-covered), leaves its core alone, handles finished worlds and plans on the full
-state in sensor tasks. rainbow_cpp: a tiny --teacher rollout run works and records its flags; --teacher-view plans on
-the true or the known map; bad values are
-one-line ValueErrors; --teacher heuristic is the run it always was.
+state in sensor tasks. rainbow_cpp: a tiny --teacher rollout run works and records its flags; the rollout labels the worlds
+the teacher acts in (every world with a margin loss); bad values are one-line ValueErrors; --teacher heuristic is the
+run it always was. policy_rollout_actions (evaluate.py's rainbow-rollout) of a heuristic-copying policy is the rollout.
 """
 from __future__ import annotations
 
@@ -160,68 +160,36 @@ def weights_hash(tmp_path, run: str) -> str:
 
 def test_rollout_teacher_run_records_its_flags(tmp_path, monkeypatch, restore_sigint, capsys):
     monkeypatch.chdir(tmp_path)
-    rc.main(tiny(tmp_path, teacher="rollout", label_fraction=0.5))
+    rc.main(tiny(tmp_path, teacher="rollout"))
     info = json.loads((tmp_path / "m.json").read_text())
-    assert info["args"]["teacher"] == "rollout" and info["args"]["label_fraction"] == 0.5
+    assert info["args"]["teacher"] == "rollout"
     assert "labels/s" in capsys.readouterr().out
 
 
 def test_heuristic_teacher_is_the_default_run(tmp_path, monkeypatch, restore_sigint):
-    """--teacher heuristic draws nothing more and ignores --label-fraction: the same weights as the default run
-    (the code before --teacher gave the same weights too: checked by hand on a fixed-seed run)."""
+    """--teacher heuristic draws nothing more: the same weights as the default run (the code before --teacher gave
+    the same weights too: checked by hand on a fixed-seed run)."""
     monkeypatch.chdir(tmp_path)
     rc.main(tiny(tmp_path, run_name="a"))
-    rc.main(tiny(tmp_path, run_name="b", teacher="heuristic", label_fraction=0.25, overwrite=True))
+    rc.main(tiny(tmp_path, run_name="b", teacher="heuristic", overwrite=True))
     assert weights_hash(tmp_path, "a") == weights_hash(tmp_path, "b")
 
 
-@pytest.mark.parametrize("view", ["full", "known"])
-def test_teacher_view_picks_the_map_the_rollout_plans_on(view):
-    """Under a range-1 camera mid-episode, --teacher-view full labels with the rollout on the true map, known with the
-    rollout on the agent's known map (evaluate.py's frontier-rollout); the two differ in some worlds."""
-    core = core_of(random_maps(16, seed=3), sensor="camera", sensor_range=1)
-    core.step(core.heuristic_actions(False, True))
-    args = rc.Args(teacher="rollout", teacher_view=view, margin_loss=1.0)
-    heuristic = core.heuristic_actions(False, True)[:, 0]
-    label, w = rc.rollout_labels(core, heuristic, np.ones(core.B, bool), args, np.random.default_rng(0))
-    assert w.tolist() == list(range(core.B))
-    assert label.tolist() == core.rollout_actions(view=view).tolist()
-    assert core.rollout_actions(view="full").tolist() != core.rollout_actions(view="known").tolist()
-
-
-def test_rollout_symmetries_label_by_the_mean_over_the_copies():
-    """--rollout-symmetries k labels with rollout_actions(symmetries=k), whose picks differ from the single copy's in
-    some of these worlds."""
-    core = core_of(random_maps(16, seed=5))
+def test_rollout_labels_the_teachers_worlds_or_every_world_with_a_margin_loss():
+    core = core_of(random_maps(8, seed=5))
     core.step(core.heuristic_actions(False, True))
     heuristic = core.heuristic_actions(False, True)[:, 0]
-    args = rc.Args(teacher="rollout", rollout_symmetries=8, margin_loss=1.0)
-    label, _ = rc.rollout_labels(core, heuristic, np.ones(core.B, bool), args, np.random.default_rng(0))
-    assert label.tolist() == core.rollout_actions(symmetries=8).tolist()
-    assert label.tolist() != core.rollout_actions().tolist()
-
-
-def test_known_view_teacher_run_records_its_flag(tmp_path, monkeypatch, restore_sigint):
-    monkeypatch.chdir(tmp_path)
-    stages = tmp_path / "camera.yaml"
-    stages.write_text("camera: {size: 6, sensor: camera, sensor_range: 2, number_obstacles: 4, base_steps: 200}\n")
-    rc.main(tiny(tmp_path, teacher="rollout", teacher_view="known", stages=str(stages)))
-    info = json.loads((tmp_path / "m.json").read_text())
-    assert info["args"]["teacher_view"] == "known"
+    teach = np.zeros(core.B, bool)
+    teach[[2, 5]] = True
+    label, w = rc.rollout_labels(core, heuristic, teach, rc.Args(teacher="rollout"))
+    assert w.tolist() == [2, 5] and label[w].tolist() == core.rollout_actions(w).tolist()
+    assert np.array_equal(np.delete(label, w), np.delete(heuristic, w))
+    label, w = rc.rollout_labels(core, heuristic, teach, rc.Args(teacher="rollout", margin_loss=1.0))
+    assert w.tolist() == list(range(core.B)) and label.tolist() == core.rollout_actions().tolist()
 
 
 @pytest.mark.parametrize("kw, msg", [(dict(teacher="oracle"), "--teacher must be one of heuristic, rollout"),
-                                     (dict(teacher="rollout", teacher_view="map"), "--teacher-view must be one of full"),
-                                     (dict(teacher_view="known"), "--teacher-view known needs --teacher rollout"),
-                                     (dict(label_fraction=1.5), r"--label-fraction must be in \[0, 1\]"),
-                                     (dict(label_fraction=-0.1), r"--label-fraction must be in \[0, 1\]"),
-                                     (dict(teacher="policy-rollout", teacher_view="known"),
-                                      "--teacher-view known needs --teacher rollout"),
-                                     (dict(teacher="policy-rollout", policy_refresh=0),
-                                      "--policy-refresh must be at least 1"),
-                                     (dict(teacher="rollout", rollout_symmetries=3),
-                                      "--rollout-symmetries must be 1, 2, 4 or 8"),
-                                     (dict(rollout_symmetries=2), "--rollout-symmetries 2 needs --teacher rollout")])
+                                     (dict(teacher="policy-rollout"), "--teacher must be one of heuristic, rollout")])
 def test_bad_teacher_flags_are_one_line_errors(tmp_path, monkeypatch, restore_sigint, kw, msg):
     monkeypatch.chdir(tmp_path)
     with pytest.raises(ValueError, match=msg) as e:
@@ -230,7 +198,7 @@ def test_bad_teacher_flags_are_one_line_errors(tmp_path, monkeypatch, restore_si
     assert not (tmp_path / "runs").exists()
 
 
-# ----------------------------------------------------------------------------- rainbow_cpp --teacher policy-rollout
+# ----------------------------------------------------------------------------- the rollout of the policy
 class HintCopier(torch.nn.Module):
     """A policy that takes the hint (the deterministic heuristic's move, the last 5 extras): greedy-dead-ends."""
 
@@ -261,15 +229,6 @@ def test_policy_rollout_of_the_heuristic_is_the_rollout():
     want = core.rollout_actions(live)
     assert rc.policy_rollout_actions(core, live, HintCopier(), stack).tolist() == want.tolist()
     assert rc.policy_rollout_actions(core, live[::-2], HintCopier(), stack).tolist() == want[::-2].tolist()
-
-
-def test_policy_rollout_teacher_run_records_its_flags(tmp_path, monkeypatch, restore_sigint, capsys):
-    monkeypatch.chdir(tmp_path)
-    rc.main(tiny(tmp_path, teacher="policy-rollout", label_fraction=0.5, policy_refresh=50, network="compact",
-                 hint=True))
-    info = json.loads((tmp_path / "m.json").read_text())
-    assert info["args"]["teacher"] == "policy-rollout" and info["args"]["policy_refresh"] == 50
-    assert "policy-rollout teacher:" in capsys.readouterr().out
 
 
 # ----------------------------------------------------------------------------- search at test time: rainbow-rollout

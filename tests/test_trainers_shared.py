@@ -39,17 +39,17 @@ SHARED = [
     "SCRIPT", "HERE", "OBSERVATION", "VIEW", "CHANNELS", "LAST_ACTIONS", "OUT_OF_BOUNDS", "EXTRAS",
     "OUT_OF_BOUNDS_SCALE", "MOVES", "DISSERTATION", "NETWORKS", "SCALE_KEYS", "HINTS", "COMPACT", "CHECKPOINT_KEYS",
     "UNREADABLE", "NoisyLinear", "QNetwork", "CompactQNetwork", "dueling", "build_network", "observation_settings",
-    "frame_shape", "device_of", "autocast", "fits_in_memory", "SumTree", "Replay", "hand_over", "Stacker", "observe", "to_torch",
-    "stuck", "large_margin_loss", "margin_weight", "labelled", "learn", "diagnostics_of", "eval_config", "heuristic_baseline",
+    "frame_shape", "device_of", "fits_in_memory", "SumTree", "Replay", "hand_over", "Stacker", "observe", "to_torch",
+    "stuck", "large_margin_loss", "labelled", "learn", "diagnostics_of", "eval_config", "heuristic_baseline",
     "world_paths", "write_episode_video",
     "save_checkpoint", "export", "read_model", "network_of", "policy_from", "load_policy",
     "load_checkpoint", "check_flags", "run_name_of", "with_network", "observed", "lineage", "host", "seed_everything",
     "start_run", "exported_by", "hinted", "save_run", "lock_run", "stop_signals", "peak_memory_mb", "progress_bar", "reason",
 ]
 # the Args fields that the shared code reads, equal in both (flag, default and docstring)
-SHARED_FLAGS = ["exp_name", "seed", "run_name", "threads", "cuda", "torch_deterministic", "compile", "amp", "quiet",
-                "capture_video", "network", "conv_width", "scales", "scale_factor", "scale_view", "margin_loss_end",
-                "margin_decay_steps", "hint", "departure_weight", "time_limit", "td_weight",
+SHARED_FLAGS = ["exp_name", "seed", "run_name", "threads", "cuda", "torch_deterministic", "quiet",
+                "capture_video", "network", "conv_width", "scales", "scale_factor", "scale_view",
+                "hint", "time_limit", "td_weight",
                 "heuristic_far_first", "overwrite"]
 
 
