@@ -1,6 +1,8 @@
 """The learning rate of the dissertation's recipe (issue 43): Table 6.2's stages 1-2 from scratch at several rates.
 
     taskset -c 1 python benchmarks/learning_rate.py --out runs/learning_rate.json       # ~10 min a rate, one core
+    taskset -c 1 python benchmarks/learning_rate.py --network fig6.8 --rates 5e-5 5e-4 --total-steps 40000 \
+        --eval-every 10000 --out results/learning_rate_fig68.json                      # Fig. 6.8, stage fi1
     python report.py ... reads nothing from here; the docs quote the JSON this writes
 
 Each rate trains rainbow_cpp.py with the scale run's flags (the compact network on one thread, the dissertation's
@@ -27,7 +29,7 @@ sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 import gridworld  # noqa: E402
 import rainbow_cpp as rc  # noqa: E402
 
-RECIPE = ["--network", "compact", "--no-cuda", "--threads", "1", "--no-heuristic-dead-ends", "--heuristic-random-ties",
+RECIPE = ["--no-cuda", "--threads", "1", "--no-heuristic-dead-ends", "--heuristic-random-ties",
           "--no-camera-stages", "--save-every", "0", "--quiet"]
 TAGS = ("eval/overlap", "eval/heuristic_overlap", "eval/completion", "eval/heuristic_share")
 
@@ -44,6 +46,10 @@ class Args:
     """held-out maps an evaluation"""
     seed: int = 1
     """the trainer's seed"""
+    network: str = "compact"
+    """the scale run's compact network, or fig6.8 (the dissertation's, ~12x the cost of an update)"""
+    total_steps: int = 0
+    """environment steps a rate trains (0: stages fi1 and fi2 whole at --stage-steps-scale)"""
     out: str = "runs/learning_rate.json"
     """where the results go, each rate as soon as it is done; a file there from the same settings is continued (its
     rates are kept and not rerun), one from other settings is refused"""
@@ -64,8 +70,11 @@ def scalars(run_dir: str, tag: str) -> list[tuple[int, float]]:
 def main(a: Args) -> None:
     if not a.rates or any(not 0 < r < 1 for r in a.rates) or not 0 < a.stage_steps_scale <= 1 or a.eval_every < 16:
         raise ValueError("--rates in (0, 1), --stage-steps-scale in (0, 1] and --eval-every >= 16")
-    total = int(1_000_000 * a.stage_steps_scale) + int(2_000_000 * a.stage_steps_scale)
-    results = {"flags": RECIPE, "stage_steps_scale": a.stage_steps_scale, "total_steps": total, "seed": a.seed,
+    if a.network not in rc.NETWORKS or a.total_steps < 0:
+        raise ValueError(f"--network must be one of {', '.join(rc.NETWORKS)} and --total-steps >= 0")
+    total = a.total_steps or int(1_000_000 * a.stage_steps_scale) + int(2_000_000 * a.stage_steps_scale)
+    flags = ["--network", a.network, *RECIPE]
+    results = {"flags": flags, "stage_steps_scale": a.stage_steps_scale, "total_steps": total, "seed": a.seed,
                "eval_every": a.eval_every, "eval_maps": a.eval_maps, "torch": torch.__version__, "rates": {},
                "provenance": rc.host() | {"date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")}}
     if os.path.exists(a.out):
@@ -89,7 +98,7 @@ def main(a: Args) -> None:
                 if f"{rate:g}" in results["rates"]:
                     continue
                 name = f"lr{rate:g}"
-                args = tyro.cli(rc.Args, args=[*RECIPE, "--learning-rate", str(rate), "--stage-steps-scale",
+                args = tyro.cli(rc.Args, args=[*flags, "--learning-rate", str(rate), "--stage-steps-scale",
                                                str(a.stage_steps_scale), "--total-steps", str(total), "--eval-every",
                                                str(a.eval_every), "--eval-maps", str(a.eval_maps), "--seed",
                                                str(a.seed), "--run-name", name])
