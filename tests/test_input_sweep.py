@@ -249,7 +249,9 @@ if __name__ == "__main__":
             for obj, name, old in reversed(patch.undo):
                 os.chdir(old) if name == "chdir" else setattr(obj, name, old)
             shutil.rmtree(folder, ignore_errors=True)
-        counts[result.split(":")[0]] += 1
+        must_refuse = isinstance(value, str) and (cli, field, value) not in FINE or isinstance(value, float) and not \
+            math.isfinite(value)
+        counts["wrong success" if must_refuse and result == "accepted" else result.split(":")[0]] += 1
         if time.perf_counter() - start > 2:
             slow.append(f"{cli} --{field.replace('_', '-')} {value}: {time.perf_counter() - start:.0f} s")
             print("slow:", slow[-1], flush=True)
