@@ -56,7 +56,7 @@ def test_pre_covered_corridor_sends_the_agent_to_its_nearest_frontier(tmp_path, 
     The full-information heuristic walks 4 steps east."""
     path = tmp_path / "corridor.txt"
     path.write_text("xxxx0xxx.\n")
-    args = dict(maps=(str(path),), out=str(tmp_path / "out"), quiet=True)
+    args = dict(maps=(str(path),), out=str(tmp_path / "out"), quiet=True, overwrite=True)  # one folder, three runs
     for policy in ("frontier", "frontier-row-major"):
         evaluate.main(evaluate.Args(policy=policy, sensor=sensor, sensor_range=sensor_range, compare="greedy-dead-ends",
                                     **args))
