@@ -686,6 +686,8 @@ def main(args: Args) -> dict:
         raise ValueError(f"--out {args.out}: a folder of other files; name a new folder or an earlier --out")
     for name in ("episodes.csv", "summary.json") + (("compare.json", "compare.md", "compare.png") if compared else ()):
         gridworld.check_output(os.path.join(args.out, name), "result", args.overwrite, "--out")  # before the minutes
+    if args.video:
+        gridworld.check_output(os.path.join(args.video, "episode.mp4"), "result", True, "--video")  # its folder's kind
     runners = {p: _runner(args if p == args.policy else replace(args, policy=p, checkpoint=None, trainer=None), p)
                for p in policies}  # every check and model load before anything runs
     episodes = scenarios_from(args)

@@ -36,7 +36,7 @@ TRAINERS = {"rainbow_cpp": rc, "rainbow_marl": rm}
 
 # every top-level definition meant to be equal in the two scripts
 SHARED = [
-    "SCRIPT", "HERE", "OBSERVATION", "VIEW", "CHANNELS", "LAST_ACTIONS", "OUT_OF_BOUNDS", "EXTRAS",
+    "SCRIPT", "HERE", "DEEP", "OBSERVATION", "VIEW", "CHANNELS", "LAST_ACTIONS", "OUT_OF_BOUNDS", "EXTRAS",
     "OUT_OF_BOUNDS_SCALE", "MOVES", "DISSERTATION", "NETWORKS", "SCALE_KEYS", "HINTS", "COMPACT", "CHECKPOINT_KEYS",
     "UNREADABLE", "NoisyLinear", "QNetwork", "CompactQNetwork", "dueling", "build_network", "observation_settings",
     "frame_shape", "device_of", "fits_in_memory", "SumTree", "Replay", "hand_over", "Stacker", "observe", "to_torch",

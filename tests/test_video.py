@@ -3,6 +3,7 @@
 import csv
 import json
 import os
+import re
 from pathlib import Path
 
 import numpy as np
@@ -27,7 +28,8 @@ def filmed(monkeypatch):
         return out
 
     def video(frames_, path, fps=10):
-        seen[os.path.basename(path).replace(".partial", "")] = frames.last
+        staged = re.fullmatch(r"\.(.+)\.[^.]+\.partial(\.\w+)", os.path.basename(path))  # gridworld.staged_output's
+        seen[staged[1] + staged[2] if staged else os.path.basename(path)] = frames.last
         Path(path).write_bytes(b"")
         return path
 
