@@ -790,8 +790,6 @@ def _write_panels(path: str, scenario: Scenario, title: str, sides: list[tuple])
 def _commit(files: dict, overwrite: bool, quiet: bool) -> None:
     """Write every file under a temporary name (gridworld's write rule: --overwrite to replace a file outside runs/),
     then rename them all into place: a failure leaves none of them, nor a folder made for them, behind."""
-    for path in files:
-        gridworld.check_output(path, "result", overwrite, "--out")
     made = []
     for folder in dict.fromkeys(os.path.dirname(p) for p in files):
         while folder and not os.path.exists(folder) and folder not in made:

@@ -389,6 +389,14 @@ def cli_errors(interrupted: str = "nothing written"):
         signal.signal(signal.SIGTERM, previous)
 
 
+def fits_in_memory(need: int, what: str) -> None:
+    """A one-line error before allocating when `need` bytes exceed this machine's memory (a typo in a count is then
+    an error, not a process the kernel kills hours later)."""
+    memory = os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    if need > memory:
+        raise ValueError(f"{what} needs {need / 2**30:,.1f} GiB, this machine has {memory / 2**30:.1f} GiB")
+
+
 # ----------------------------------------------------------------------------- the write rule of every script
 REPO = os.path.dirname(os.path.abspath(__file__))
 GUARDED = {"models": "model", "results": "result", "maps": "dataset"}  # committed folders: the one kind each holds
@@ -1427,10 +1435,7 @@ class GridWorldCore:
         """(Re)build the canvas-coordinate arrays, keeping the worlds in progress."""
         c = self.config.view_size // 2
         B, Ph, Pw = self.B, H + 2 * c, W + 2 * c
-        need, memory = B * Ph * Pw * CANVAS_BYTES, os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
-        if need > memory:  # before allocating: a typo in a count is a one-line error, not a process killed
-            raise ValueError(f"{B:,} worlds of {Ph}x{Pw} canvas cells need {need / 2**30:,.1f} GiB, this machine has "
-                             f"{memory / 2**30:.1f} GiB")
+        fits_in_memory(B * Ph * Pw * CANVAS_BYTES, f"the canvas of {B:,} worlds of {Ph}x{Pw} cells")
         keep = {}
         if old is not None:
             oc = self.c

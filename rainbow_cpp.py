@@ -409,13 +409,6 @@ def device_of(q: nn.Module) -> torch.device:
 
 
 # ----------------------------------------------------------------------------- replay memory
-def fits_in_memory(need: int, what: str) -> None:
-    """A one-line error before allocating when `need` bytes exceed this machine's memory."""
-    memory = os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
-    if need > memory:
-        raise ValueError(f"{what} needs {need / 2**30:,.1f} GiB, this machine has {memory / 2**30:.1f} GiB")
-
-
 class SumTree:
     """Priorities in a binary tree: sampling proportional to priority and updates in O(log n); `valid` counts
     the leaves above zero (kept as they change: counting them is O(capacity))."""
@@ -464,7 +457,7 @@ class Replay:
 
     def __init__(self, capacity: int, worlds: int, view: int, frames: int, n_step: int, gamma: float,
                  alpha: float, channels: int | None = None, hint: bool = False):
-        fits_in_memory(capacity * self.transition_bytes(view, channels, hint),  # zero pages until filled, hours on
+        gridworld.fits_in_memory(capacity * self.transition_bytes(view, channels, hint),  # zero pages until filled, hours on
                        f"--buffer-size {capacity:,}: the replay memory")
         self.cap, self.worlds, self.V, self.k = capacity // worlds, worlds, view, frames
         self.n_step, self.gamma, self.alpha = n_step, gamma, alpha
@@ -1093,7 +1086,7 @@ def start_run(args: Args, n_stages: int) -> tuple:
             weights = sum(w.numel() for w in build_network(spec, args.sigma0).parameters())
     except RuntimeError as e:  # a shape past what torch can describe
         raise ValueError(f"the network cannot be built ({reason(e)}); see --hidden, --conv-width, --frame-stack") from None
-    fits_in_memory(16 * weights, f"the network ({weights:,} weights; --hidden, --conv-width, --frame-stack)")
+    gridworld.fits_in_memory(16 * weights, f"the network ({weights:,} weights; --hidden, --conv-width, --frame-stack)")
     q, target = (build_network(spec, args.sigma0).to(device) for _ in range(2))
     optimizer = torch.optim.Adam(q.parameters(), lr=args.learning_rate, eps=args.adam_eps,
                                  fused=True)  # fused: ~7x faster than the per-tensor loop on CPU

@@ -193,7 +193,7 @@ def test_the_worlds_memory_is_checked_before_allocating():
     core.reset()
     owned = sum(v.nbytes for v in vars(core).values() if isinstance(v, np.ndarray) and v.base is None)
     assert gw.CANVAS_BYTES <= owned / (8 * core.Ph * core.Pw) < gw.CANVAS_BYTES + 0.5  # the estimate is what it holds
-    with pytest.raises(ValueError, match=r"^1,000,000,000,000 worlds of 46x46 canvas cells need [\d,.]+ GiB, this"):
+    with pytest.raises(ValueError, match=r"^the canvas of 1,000,000,000,000 worlds of 46x46 cells needs [\d,.]+ GiB, this"):
         gw.GridWorldCore(dict(size=6), HUGE_INT)
 
 

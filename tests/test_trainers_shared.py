@@ -39,7 +39,7 @@ SHARED = [
     "SCRIPT", "HERE", "DEEP", "OBSERVATION", "VIEW", "CHANNELS", "LAST_ACTIONS", "OUT_OF_BOUNDS", "EXTRAS",
     "OUT_OF_BOUNDS_SCALE", "MOVES", "DISSERTATION", "NETWORKS", "SCALE_KEYS", "HINTS", "COMPACT", "CHECKPOINT_KEYS",
     "UNREADABLE", "NoisyLinear", "QNetwork", "CompactQNetwork", "dueling", "build_network", "observation_settings",
-    "frame_shape", "device_of", "fits_in_memory", "SumTree", "Replay", "hand_over", "Stacker", "observe", "to_torch",
+    "frame_shape", "device_of", "SumTree", "Replay", "hand_over", "Stacker", "observe", "to_torch",
     "stuck", "large_margin_loss", "labelled", "learn", "diagnostics_of", "eval_config", "heuristic_baseline",
     "world_paths", "write_episode_video",
     "save_checkpoint", "export", "read_model", "network_of", "policy_from", "load_policy",
