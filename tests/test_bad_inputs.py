@@ -313,10 +313,9 @@ def test_loaders_check_the_side_before_reading_the_cells(tmp_path):
 
 # ----------------------------------------------------------------------------- benchmarks
 @pytest.mark.parametrize("script,flags,problem", [
-    ("team_overlap.py", ["--every", "0"], "--every >= 1"),
-    ("label_symmetry.py", ["--size", "1", "--worlds", "1"], "--min-size <= --size"),
-    ("tie_features.py", ["--worlds", "-1"], "--worlds must be >= 1, got -1"),
-    ("tie_features.py", ["--symmetries", "3"], "--symmetries must be 1, 2, 4 or 8"),
+    ("team_rollout.py", ["--agents", "0"], "the team rollout needs >= 2 agents"),
+    ("team_rollout.py", ["--marl-every", "0"], "marl_every must be >= 1"),
+    ("rollout_planner.py", ["--per-size", "-1"], "--per-size must be >= 0, got -1"),
 ])
 def test_benchmark_bad_flags(tmp_path, script, flags, problem):
     one_line_error(run(f"benchmarks/{script}", *flags, "--cpu", "-1", cwd=tmp_path, timeout=60), problem)

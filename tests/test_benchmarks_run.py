@@ -12,24 +12,14 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
-MODEL = str(ROOT / "models" / "rainbow_cpp.pt")
 TESTED_ELSEWHERE = {"cpu.py"}
 TINY = {  # each ~2-15 s on one core; --cpu -1: the first CPU this process may use (CPU 0 may not be one)
-    "departures.py": ["--data", "d.npz", "--states", "64", "--worlds", "2", "--size", "6", "--min-size", "5",
-                      "--epochs", "1", "--model", MODEL, "--cpu", "-1"],
     "learning_rate.py": ["--rates", "5e-4", "--stage-steps-scale", "0.0001", "--eval-every", "64", "--eval-maps", "2",
                          "--out", "lr.json"],
     "recipe_speed.py": ["--steps", "32", "--learning-starts", "32", "--buffer-size", "1024"],
-    "label_symmetry.py": ["--worlds", "1", "--size", "6", "--min-size", "5", "--cpu", "-1"],
     "rainbow_sps.py": ["--steps", "16", "--learning-starts", "32", "--hidden", "16", "--size", "6", "--num-envs", "2"],
-    "rollout_agreement.py": ["--worlds", "1", "--size", "6", "--min-size", "5", "--model", MODEL, "--cpu", "-1"],
-    "rollout_labels.py": ["--families", "random", "--sizes", "6", "--worlds", "2", "--seconds", "0.1", "--policy",
-                          MODEL, "--cpu", "-1"],
     "rollout_planner.py": ["--per-size", "1", "--sizes", "5", "--external-maps", "empty-8-8.map", "--cpu", "-1"],
-    "team_overlap.py": ["--every", "200", "--cpu", "-1"],
     "team_rollout.py": ["--agents", "2", "--marl-every", "5000", "--structured-every", "0", "--cpu", "-1"],
-    "tie_features.py": ["--worlds", "2", "--batches", "1", "--size", "6", "--min-size", "5", "--iterations", "5",
-                        "--cpu", "-1"],
     "train_speed.py": ["--quick", "--threads", "1", "--no-cuda", "--no-sb3", "--batch-sizes", "32",
                        "--replay-ratios", "4", "--learning-starts", "32", "--size", "6", "--steps", "16", "--repeats",
                        "1", "--json", "rows.json"],

@@ -334,7 +334,7 @@ def test_make_datasets_out_must_be_a_folder(tmp_path):
     ("maps/make_datasets.py", ["--per-size", "abc"], "Error parsing --per-size"),
     ("benchmarks/rollout_planner.py", ["--bogus"], "Unrecognized options: --bogus"),
     ("benchmarks/train_speed.py", ["--threads", "one"], "Error parsing --threads"),
-    ("benchmarks/rollout_agreement.py", ["--every", "x"], "Error parsing --every"),
+    ("benchmarks/team_rollout.py", ["--agents", "x"], "Error parsing --agents"),
 ])
 def test_a_flag_the_parser_refuses_is_one_error_line(tmp_path, script, flags, problem):
     cli_error(tmp_path, script, *flags, match=f"^error: {problem}.*\\(see {os.path.basename(script)} --help\\)$")
