@@ -327,7 +327,7 @@ def greedy_many(scenarios: list[Scenario], dead_ends_first: bool = False,
     nearest known point of interest, first in row-major order on ties (with dead_ends_first,
     the one with the fewest uncovered neighbours first; with far_first, the one farthest from
     the start first); several agents claim distinct targets (the nearest agent-target pair first)."""
-    return _run_many(scenarios, lambda core, live: core.heuristic_actions(False, dead_ends_first, far_first)[live])
+    return _run_many(scenarios, lambda core, live: gridworld.heuristic_actions(core, False, dead_ends_first, far_first)[live])
 
 
 def _run_many(scenarios: list[Scenario], act) -> list[list[np.ndarray]]:
@@ -379,7 +379,7 @@ def greedy_far_first(scenario: Scenario) -> list[np.ndarray]:
 def heuristic_base(dead_ends_first: bool = True, far_first: bool = False):
     """The navigation heuristic with deterministic ties as a rollout base: base(core) -> (B, N) actions."""
     def base(core: GridWorldCore) -> np.ndarray:
-        return core.heuristic_actions(random_ties=False, dead_ends_first=dead_ends_first, far_first=far_first)
+        return gridworld.heuristic_actions(core, random_ties=False, dead_ends_first=dead_ends_first, far_first=far_first)
 
     base.markov = True  # its moves depend on the agents' cells and the coverage only
     return base
@@ -678,10 +678,11 @@ class _Rollout:
 def team_rollout_many(scenarios: list[Scenario], dead_ends_first: bool = True,
                       far_first: bool = False) -> list[list[np.ndarray]]:
     """The multiagent rollout (Bertsekas 2020) of the heuristic with claims for many maps at once:
-    GridWorldCore.team_rollout_actions at every step (agent i tries each move with agents < i on their chosen
+    gridworld.team_rollout_actions at every step (agent i tries each move with agents < i on their chosen
     moves and agents > i on the heuristic's and keeps the one whose imagined team finishes first, then with the
     fewest agent moves: N * 4 tries a step, not 5^N); never a longer makespan than the heuristic's own."""
-    return _run_many(scenarios, lambda core, live: core.team_rollout_actions(live, dead_ends_first, far_first=far_first))
+    return _run_many(scenarios, lambda core, live: gridworld.team_rollout_actions(core, live, dead_ends_first,
+                                                                                   far_first=far_first))
 
 
 def rollout(scenario: Scenario) -> list[np.ndarray]:
@@ -794,7 +795,7 @@ def replay(scenario: Scenario, paths: list[np.ndarray], complete: bool = True) -
 
 def plan(name: str, scenarios: list[Scenario], rollout_base: str = "greedy-dead-ends") -> list[list[np.ndarray]]:
     """Paths of planner `name` for every scenario (greedy and rollout are batched over all of them;
-    rollout looks ahead with `rollout_base`, one of ROLLOUT_BASES: GridWorldCore.rollout_actions at every step for
+    rollout looks ahead with `rollout_base`, one of ROLLOUT_BASES: gridworld.rollout_actions at every step for
     one agent, 3-4x faster than rollout_many and as cheap but for ties, team_rollout_many for several)."""
     if name not in PLANNERS:
         raise ValueError(f"unknown planner {name!r}; choose from {sorted(PLANNERS)}")
@@ -804,7 +805,7 @@ def plan(name: str, scenarios: list[Scenario], rollout_base: str = "greedy-dead-
         if rollout_base not in ROLLOUT_BASES:
             raise ValueError(f"unknown rollout base {rollout_base!r}; choose from {sorted(ROLLOUT_BASES)}")
         dead_ends_first, far_first = BATCHED[rollout_base]
-        singles = iter(_run_many([s for s in scenarios if len(s.starts) == 1], lambda core, live: core.rollout_actions(
+        singles = iter(_run_many([s for s in scenarios if len(s.starts) == 1], lambda core, live: gridworld.rollout_actions(core,
             live, dead_ends_first, far_first=far_first).reshape(-1, 1)))  # the teacher's walkers: rollout_many's costs
         teams = iter(team_rollout_many([s for s in scenarios if len(s.starts) > 1], dead_ends_first, far_first))
         return [next(teams if len(s.starts) > 1 else singles) for s in scenarios]

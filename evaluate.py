@@ -482,8 +482,8 @@ def _frontier(args: Args, policy: str):
         while not done.all():
             action = np.full(core.B, gridworld.WAIT)
             live = np.flatnonzero(~done)
-            action[live] = (core.rollout_actions(live, dead_ends_first, view="known", far_first=far_first) if lookahead
-                            else core.heuristic_actions(False, dead_ends_first, far_first)[live, 0])
+            action[live] = (gridworld.rollout_actions(core, live, dead_ends_first, view="known", far_first=far_first) if lookahead
+                            else gridworld.heuristic_actions(core, False, dead_ends_first, far_first)[live, 0])
             ev = core.step(action[:, None])
             steps += ~done
             truncated |= ev["truncated"] & ~done

@@ -1133,225 +1133,62 @@ def _maze(rng, hw, H, W, p: FamilyParams) -> np.ndarray:
     return ~free & ~tiny[:, None, None]
 
 
+def draw_maps(core: GridWorldCore, k: int) -> None:
+    """Algorithm 9 for k random worlds at once: size, the obstacles of a structured map family (if any),
+    starts on free cells, Algorithm 9's random obstacles (family "random"), then Algorithm 10 (cells
+    unreachable from agent 0 become obstacles); adds the usable ones to the world's pool of maps."""
+    cfg, rng, H, W, N = core.config, core.rng, core.H, core.W, core.N
+    bidx = np.arange(k)[:, None]
+    active = core._active(k)
+    side = rng.integers(cfg.min_size, cfg.size + 1, k) if cfg.random_size else np.full(k, cfg.size)
+    hw = np.stack([side, side], 1)
+    obstacle = ~((np.arange(H)[None, :, None] < side[:, None, None]) &
+                 (np.arange(W)[None, None, :] < side[:, None, None]))
+    fixed_starts = not cfg.starting_position_random and cfg.starting_position is not None
+    if cfg.map_family == "mixed":  # one family per map, index into MAP_FAMILIES (0 = random)
+        weights = cfg.map_family_weights or dict.fromkeys(MAP_FAMILIES[:-1], 1.0)
+        p = np.array([weights.get(f, 0.0) for f in MAP_FAMILIES[:-1]], float)
+        family = rng.choice(len(p), k, p=p / p.sum())
+    else:
+        family = np.full(k, MAP_FAMILIES.index(cfg.map_family))
+    for f, name in enumerate(STRUCTURED_FAMILIES, 1):
+        if (family == f).any():
+            obstacle[family == f] = structured_obstacles(name, rng, hw[family == f], H, W, cfg.family)
+    if fixed_starts and family.any():  # a fixed start on a wall or block: the cell is cleared (walled in: dropped below)
+        st = np.atleast_2d(np.asarray(cfg.starting_position, np.int64))
+        y, x = st[(st >= 0).all(1) & (st[:, 0] < H) & (st[:, 1] < W)].T
+        obstacle[:, y, x] &= (y >= hw[:, :1]) | (x >= hw[:, 1:])  # outside the map stays blocked (_starts says so)
+    starts = core._starts(obstacle, hw)
+    start_mask = np.zeros((k, H, W), bool)
+    start_mask[bidx, starts[..., 0], starts[..., 1]] = active
+    scatter = family == 0  # Algorithm 9's obstacles: number_obstacles random cells, never on a start
+    if scatter.any():
+        ks = int(scatter.sum())
+        n_obs = np.minimum(cfg.number_obstacles, side[scatter] * side[scatter] - N - 1)
+        if cfg.obstacles_random:
+            n_obs = rng.integers(0, n_obs + 1)
+        keys = rng.random((ks, H * W))
+        keys[(obstacle[scatter] | start_mask[scatter]).reshape(ks, -1)] = np.inf
+        rank = np.argsort(np.argsort(keys, 1), 1).reshape(ks, H, W)
+        obstacle[scatter] |= rank < n_obs[:, None, None]
+    first = np.zeros_like(start_mask)
+    first[np.arange(k), starts[:, 0, 0], starts[:, 0, 1]] = True
+    obstacle |= ~flood(~obstacle, first)
+    lost = active & obstacle[bidx, starts[..., 0], starts[..., 1]]
+    if lost.any() and not fixed_starts:  # agents walled off: move them to agent 0's region
+        start_mask &= ~obstacle
+        spare = core._random_cells(~obstacle & ~start_mask, N)
+        starts = np.where(lost[..., None], spare, starts)
+        start_mask[bidx, starts[..., 0], starts[..., 1]] |= active
+    n_free, n_active = (~obstacle).sum((1, 2)), active.sum(1)
+    usable = (n_free > n_active) & ((start_mask & ~obstacle).sum((1, 2)) == n_active)
+    if fixed_starts:
+        usable &= ~lost.any(1)
+    drawn = (obstacle, hw, starts, active, start_mask)
+    core.pool = [np.concatenate([p, d[usable]]) for p, d in zip(core.pool, drawn)]
+
+
 # ----------------------------------------------------------------------------- the core
-def _grown(front: np.ndarray, Wp: int) -> np.ndarray:
-    """Flat bordered maps (n, P), rows Wp wide, grown by the 4-neighbourhood (the border stops wrap-around)."""
-    grown = front.copy()
-    grown[:, Wp:] |= front[:, :-Wp]
-    grown[:, :-Wp] |= front[:, Wp:]
-    grown[:, 1:] |= front[:, :-1]
-    grown[:, :-1] |= front[:, 1:]
-    return grown
-
-
-def _neighbours(poi: np.ndarray, Wp: int) -> np.ndarray:
-    """How many of each cell's 4 neighbours are points of interest, for flat bordered maps (n, P)."""
-    degree = np.zeros(poi.shape, np.int64)
-    degree[:, Wp:] += poi[:, :-Wp]
-    degree[:, :-Wp] += poi[:, Wp:]
-    degree[:, 1:] += poi[:, :-1]
-    degree[:, :-1] += poi[:, 1:]
-    return degree
-
-
-def _path_tables(free: np.ndarray, Wp: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Shortest paths between the free cells of one flat bordered map (row width Wp), for the rollouts' walkers:
-    the table row of each cell (-1 where not free); the distance from each free cell to every cell (int16, 32767
-    where unreachable); and the heuristic's first cell from each free cell toward every cell, where the walk back
-    from the goal, each step to the first closer cell in N, S, W, E order, ends."""
-    cells = np.flatnonzero(free)
-    n, P, far = len(cells), free.size, np.iinfo(np.int16).max
-    row = np.full(P, -1, np.int64)
-    row[cells] = np.arange(n)
-    dist = np.full((n, P), far, np.int16)
-    front = np.zeros((n, P), bool)
-    front[np.arange(n), cells] = True
-    visited, i = front.copy(), 0
-    while front.any():  # breadth-first from every free cell at once
-        dist[front] = i
-        front = _grown(front, Wp) & free & ~visited
-        visited |= front
-        i += 1
-    ahead = np.full((4, n, P), far, np.int16)  # the distance of each cell's N, S, W, E neighbour
-    ahead[0, :, Wp:], ahead[1, :, :-Wp], ahead[2, :, 1:], ahead[3, :, :-1] = (
-        dist[:, :-Wp], dist[:, Wp:], dist[:, :-1], dist[:, 1:])
-    back = (ahead == dist - 1).argmax(0)
-    here = np.arange(P)
-    first = np.where((dist >= 2) & (dist < far), here + np.array([-Wp, Wp, -1, 1])[back], here).astype(np.int32)
-    for _ in range(max(1, int(np.ceil(np.log2(max(i, 2)))))):  # pointer doubling: each pass halves the walk left
-        first = np.take_along_axis(first, first, 1)
-    return row, dist, first.astype(np.int16)
-
-
-def _symmetric(a: np.ndarray, k: int) -> np.ndarray:
-    """Boards (..., H, W) in the k-th of the square's 8 symmetries: transposed for k >= 4, then turned k % 4
-    quarter turns (np.rot90). The first 2 and the first 4 mix row-first and column-first scans (row-major ties)."""
-    if k >= 4:
-        a = np.swapaxes(a, -1, -2)
-    return np.ascontiguousarray(np.rot90(a, k % 4, axes=(-2, -1)))
-
-
-def _symmetric_cells(cells: np.ndarray, k: int, H: int, W: int) -> np.ndarray:
-    """Cells (n, 2) of H x W boards where _symmetric(board, k) has them."""
-    y, x = cells[:, 0], cells[:, 1]
-    if k >= 4:
-        y, x, H, W = x, y, W, H
-    for _ in range(k % 4):  # a quarter turn puts (y, x) at (W - 1 - x, y) of a W x H board
-        y, x, H, W = W - 1 - x, y, W, H
-    return np.stack([y, x], 1)
-
-
-@functools.cache
-def _symmetric_moves(k: int) -> np.ndarray:
-    """m[a]: the move of _symmetric(board, k) that is move a (N, S, W, E) of the board (read-only: cached)."""
-    d = ACTION_DELTAS[:4]
-    turned = _symmetric_cells(d + 1, k, 3, 3) - 1  # the moves as cells around the centre of a 3 x 3 board
-    moves = np.array([int(np.flatnonzero((d == t).all(1))[0]) for t in turned])
-    moves.setflags(write=False)
-    return moves
-
-
-_NEVER, _UNREACHED = np.iinfo(np.int64).max, np.iinfo(np.int16).max  # the walkers' 'no target' key, _path_tables' distance
-
-
-class _Walkers:
-    """Single agents following the deterministic navigation heuristic (GridWorldCore.heuristic_actions with
-    random_ties=False, one agent, full view) on bare maps, in lockstep: the rollouts' tries. A map is its free
-    cells and points of interest, flat with a border of obstacle; several walkers may share a map (`map_of`).
-    Only a walker with no point of interest next to it looks further: in its map's _path_tables where they are
-    given (a few array operations, and the target found is kept for the walk to it), else by a breadth-first
-    search; the others pick among their neighbours."""
-
-    def __init__(self, free: np.ndarray, poi: np.ndarray, cells: np.ndarray, dead_ends_first: bool,
-                 tables: list | None = None, start: np.ndarray | None = None):
-        n, H, W = free.shape
-        self.Wp, self.P, self.dead_ends_first = W + 2, (H + 2) * (W + 2), dead_ends_first
-        pad = np.zeros((2, n, H + 3, W + 2), bool)  # a spare row: a border cell's neighbours are in the array
-        pad[:, :, 1:H + 1, 1:-1] = free, poi
-        self.free, self.poi = pad[0].reshape(n, -1), pad[1].reshape(n, -1)
-        self.from_start = None  # far-first (start: the starting cells): each map's steps from them, flat
-        if start is not None:
-            steps = np.zeros((n, H + 3, W + 2), np.int64)
-            steps[:, 1:H + 1, 1:-1] = _distance_from(free, start)
-            self.from_start = steps.reshape(n, -1)
-        self.map_of = np.arange(n)
-        self.pos = (cells[:, 0] + 1) * self.Wp + cells[:, 1] + 1
-        self.goal = np.full(n, -1)  # a far walker's target from _look_up, kept until it is next to one (-1: none)
-        self.planned = np.full(n, -1)  # the last moves(): a walker stepping otherwise drops its goal
-        self.remaining = self.poi.sum(1)
-        self.delta = np.array([-self.Wp, self.Wp, -1, 1])  # N, S, W, E
-        self.tables = tables or [None] * n  # per map: _path_tables of its free cells, or None (search)
-
-    def take(self, rows: np.ndarray) -> _Walkers:
-        """The walkers `rows` (repeats allowed), each with its own copy of its points of interest."""
-        out = object.__new__(_Walkers)
-        out.__dict__.update(self.__dict__)
-        out.map_of, out.pos, out.remaining = self.map_of[rows], self.pos[rows], self.remaining[rows]
-        out.goal, out.planned = self.goal[rows], self.planned[rows]
-        out.poi = self.poi[rows]
-        return out
-
-    def _key(self, degree: np.ndarray, cells: np.ndarray, maps: np.ndarray) -> np.ndarray:
-        """The heuristic's order among equally near targets of walkers on `maps` (broadcast with cells): fewer
-        target neighbours first (dead-ends-first) minus steps from the start (far-first; with both, holes first),
-        then row-major (the border keeps flat order row-major)."""
-        rank = degree + self.P if self.dead_ends_first else np.full(np.shape(cells), self.P)
-        if self.from_start is not None:
-            if self.dead_ends_first:  # holes (no target neighbour) first, as heuristic_actions
-                rank = rank + np.where(degree > 0, 2 * self.P, 0)
-            rank = rank - self.from_start[maps, cells]
-        return rank * self.P + cells
-
-    def moves(self) -> np.ndarray:
-        """The heuristic's move of every walker (WAIT where no point of interest is reachable)."""
-        rows = np.arange(len(self.pos))
-        near = self.pos[:, None] + self.delta
-        target = self.poi[rows[:, None], near]
-        degree = self.poi[rows[:, None, None], near[..., None] + self.delta].sum(-1) if self.dead_ends_first else 0
-        key = np.where(target, self._key(degree, near, self.map_of[:, None]), _NEVER)
-        move = np.where(target.any(1), key.argmin(1), WAIT)
-        far = np.flatnonzero(~target.any(1))
-        self.goal[target.any(1)] = -1
-        if len(far):
-            tabled = np.array([self.tables[m] is not None for m in self.map_of[far]], bool)
-            if tabled.any():
-                move[far[tabled]] = self._look_up(far[tabled])
-            if not tabled.all():
-                move[far[~tabled]] = self._search(far[~tabled])
-        self.planned = move
-        return move
-
-    def _look_up(self, far: np.ndarray) -> np.ndarray:
-        """_search's moves from the walkers' _path_tables: the nearest targets by distance, ties by _key, and the
-        tabled first cell toward the chosen one. A walker keeps its target until it is next to one: its points of
-        interest do not change on the way and the target stays the nearest by that order (each step brings it
-        one closer, and any other one at most one), so only the first step of a walk searches."""
-        going = self.goal[far] >= 0
-        move = np.zeros(len(far), np.int64)
-        if going.any():
-            first = np.array([self.tables[m][2][self.tables[m][0][p], g] for m, p, g in
-                              zip(self.map_of[far[going]], self.pos[far[going]], self.goal[far[going]])], np.int64)
-            move[going] = (first[:, None] == self.pos[far[going], None] + self.delta).argmax(1)
-        if not going.all():
-            move[~going] = self._nearest_goal(far[~going])
-        return move
-
-    def _nearest_goal(self, far: np.ndarray) -> np.ndarray:
-        """_look_up for walkers without a target: it is chosen (and kept in self.goal) and the first move made."""
-        Wp = self.Wp
-        rows = [(self.tables[m], self.tables[m][0][p]) for m, p in zip(self.map_of[far], self.pos[far])]
-        dist = np.stack([t[1][r] for t, r in rows])
-        poi = self.poi[far]
-        dist = np.where(poi, dist, _UNREACHED)
-        nearest = dist == dist.min(1, keepdims=True)
-        degree = _neighbours(poi, Wp) if self.dead_ends_first else 0
-        key = self._key(degree, np.arange(poi.shape[1]), self.map_of[far, None])
-        goal = np.where(nearest & poi, key, _NEVER).argmin(1)
-        first = np.array([t[2][r, g] for (t, r), g in zip(rows, goal)], np.int64)
-        move = (first[:, None] == self.pos[far, None] + self.delta).argmax(1)
-        reached = poi.any(1) & (dist.min(1) < _UNREACHED)
-        self.goal[far] = np.where(reached, goal, -1)
-        return np.where(reached, move, WAIT)
-
-    def _search(self, far: np.ndarray) -> np.ndarray:
-        """Breadth-first search from walkers with no neighbouring target to their nearest one (ties by _key), and
-        the first move of the walk back from it (each step to the first closer cell in N, S, W, E order)."""
-        k, Wp, rows = len(far), self.Wp, np.arange(len(far))
-        free, poi = self.free[self.map_of[far]], self.poi[far]
-        front = np.zeros(poi.shape, bool)
-        front[rows, self.pos[far]] = True
-        visited, layers = front.copy(), [front]
-        goal, dist = np.zeros(k, np.int64), np.zeros(k, np.int64)
-        while True:
-            front = _grown(front, Wp) & free & ~visited
-            front[dist > 0] = False  # walkers that found their target stop
-            if not front.any():
-                break
-            visited |= front
-            layers.append(front)
-            hit = front & poi
-            found = np.flatnonzero(hit.any(1))
-            if len(found):
-                degree = _neighbours(poi[found], Wp) if self.dead_ends_first else 0
-                key = self._key(degree, np.arange(poi.shape[1]), self.map_of[far[found], None])
-                key = np.where(hit[found], key, _NEVER)
-                goal[found], dist[found] = key.argmin(1), len(layers) - 1
-        for i in range(int(dist.max()) - 1, 0, -1):  # walk back from the goal to distance 1
-            near = goal[:, None] + self.delta
-            pick = layers[i][rows[:, None], near].argmax(1)
-            goal = np.where(dist > i, near[rows, pick], goal)
-        first = (goal[:, None] == self.pos[far, None] + self.delta).argmax(1)
-        return np.where(dist > 0, first, WAIT)
-
-    def step(self, move: np.ndarray) -> None:
-        """Every walker moves (into a free cell, never WAIT) and covers the cell it enters."""
-        rows = np.arange(len(self.pos))
-        self.goal = np.where(move == self.planned, self.goal, -1)
-        self.pos = self.pos + self.delta[move]
-        self.remaining = self.remaining - self.poi[rows, self.pos]
-        self.poi[rows, self.pos] = False
-
-
 class GridWorldCore:
     """B independent worlds with up to N agents each, as numpy arrays, stepped together.
 
@@ -1527,7 +1364,7 @@ class GridWorldCore:
             idle = 0  # draws in a row that gave no usable map
             while len(self.pool[0]) < k:  # maps are drawn in batches: one reset is cheap
                 before = len(self.pool[0])
-                self._draw_maps(max(64, k))
+                draw_maps(self, max(64, k))
                 idle = 0 if len(self.pool[0]) > before else idle + 1
                 if idle == 20:
                     raise ValueError(f"map_family {cfg.map_family!r}: no usable map in 20 draws of {max(64, k)} (too "
@@ -1582,59 +1419,12 @@ class GridWorldCore:
             raise ValueError(f"duplicate starting positions {st.tolist()}")
         return np.broadcast_to(st, (k, self.N, 2)).copy()
 
-    def _draw_maps(self, k: int) -> None:
-        """Algorithm 9 for k random worlds at once: size, the obstacles of a structured map family (if any),
-        starts on free cells, Algorithm 9's random obstacles (family "random"), then Algorithm 10 (cells
-        unreachable from agent 0 become obstacles); adds the usable ones to the pool."""
-        cfg, rng, H, W, N = self.config, self.rng, self.H, self.W, self.N
-        bidx = np.arange(k)[:, None]
-        active = self._active(k)
-        side = rng.integers(cfg.min_size, cfg.size + 1, k) if cfg.random_size else np.full(k, cfg.size)
-        hw = np.stack([side, side], 1)
-        obstacle = ~((np.arange(H)[None, :, None] < side[:, None, None]) &
-                     (np.arange(W)[None, None, :] < side[:, None, None]))
-        fixed_starts = not cfg.starting_position_random and cfg.starting_position is not None
-        if cfg.map_family == "mixed":  # one family per map, index into MAP_FAMILIES (0 = random)
-            weights = cfg.map_family_weights or dict.fromkeys(MAP_FAMILIES[:-1], 1.0)
-            p = np.array([weights.get(f, 0.0) for f in MAP_FAMILIES[:-1]], float)
-            family = rng.choice(len(p), k, p=p / p.sum())
-        else:
-            family = np.full(k, MAP_FAMILIES.index(cfg.map_family))
-        for f, name in enumerate(STRUCTURED_FAMILIES, 1):
-            if (family == f).any():
-                obstacle[family == f] = structured_obstacles(name, rng, hw[family == f], H, W, cfg.family)
-        if fixed_starts and family.any():  # a fixed start on a wall or block: the cell is cleared (walled in: dropped below)
-            st = np.atleast_2d(np.asarray(cfg.starting_position, np.int64))
-            y, x = st[(st >= 0).all(1) & (st[:, 0] < H) & (st[:, 1] < W)].T
-            obstacle[:, y, x] &= (y >= hw[:, :1]) | (x >= hw[:, 1:])  # outside the map stays blocked (_starts says so)
-        starts = self._starts(obstacle, hw)
-        start_mask = np.zeros((k, H, W), bool)
-        start_mask[bidx, starts[..., 0], starts[..., 1]] = active
-        scatter = family == 0  # Algorithm 9's obstacles: number_obstacles random cells, never on a start
-        if scatter.any():
-            ks = int(scatter.sum())
-            n_obs = np.minimum(cfg.number_obstacles, side[scatter] * side[scatter] - N - 1)
-            if cfg.obstacles_random:
-                n_obs = rng.integers(0, n_obs + 1)
-            keys = rng.random((ks, H * W))
-            keys[(obstacle[scatter] | start_mask[scatter]).reshape(ks, -1)] = np.inf
-            rank = np.argsort(np.argsort(keys, 1), 1).reshape(ks, H, W)
-            obstacle[scatter] |= rank < n_obs[:, None, None]
-        first = np.zeros_like(start_mask)
-        first[np.arange(k), starts[:, 0, 0], starts[:, 0, 1]] = True
-        obstacle |= ~flood(~obstacle, first)
-        lost = active & obstacle[bidx, starts[..., 0], starts[..., 1]]
-        if lost.any() and not fixed_starts:  # agents walled off: move them to agent 0's region
-            start_mask &= ~obstacle
-            spare = self._random_cells(~obstacle & ~start_mask, N)
-            starts = np.where(lost[..., None], spare, starts)
-            start_mask[bidx, starts[..., 0], starts[..., 1]] |= active
-        n_free, n_active = (~obstacle).sum((1, 2)), active.sum(1)
-        usable = (n_free > n_active) & ((start_mask & ~obstacle).sum((1, 2)) == n_active)
-        if fixed_starts:
-            usable &= ~lost.any(1)
-        drawn = (obstacle, hw, starts, active, start_mask)
-        self.pool = [np.concatenate([p, d[usable]]) for p, d in zip(self.pool, drawn)]
+    def _world_indices(self, worlds) -> np.ndarray:
+        """The indices of the given worlds: all (None), a bool mask or indices."""
+        if worlds is None:
+            return np.arange(self.B)
+        w = np.asarray(worlds)
+        return np.flatnonzero(w) if w.dtype == bool else w.astype(np.int64).ravel()
 
     def _random_cells(self, allowed: np.ndarray, n: int) -> np.ndarray:
         """n distinct uniformly random cells of `allowed` (k, H, W) per world -> (k, n, 2)."""
@@ -2085,469 +1875,673 @@ class GridWorldCore:
         run = np.cumprod(open_, -1).sum(-1)
         return np.where(blocked[..., 0], -1, run).astype(np.int8)
 
-    # --- the navigation heuristic -------------------------------------------------------
-    def heuristic_actions(self, random_ties: bool = True, dead_ends_first: bool = False,
-                          far_first: bool = False) -> np.ndarray:
-        """One step along a shortest path to the nearest known point of interest for every agent at once, (B, N).
-        With several agents, targets are claimed greedily by distance (the nearest agent-target pair first, the
-        lower index on a tie), so no two agents chase one cell and a contested cell goes to the agent with the
-        shorter path. Ties between equally near targets and equally short paths are broken at random (§6.3.1: a
-        reinforced random walk), or with random_ties=False by the first target in row-major order and the first
-        move in N, S, W, E order. Paths use known free cells; a world with no known point of interest targets
-        its frontier (known free cells next to unseen ones), and so does an agent that reaches no known point of
-        interest over known cells (a camera sees through walls). An agent left without a target waits (WAIT).
-        With dead_ends_first, equally near targets with fewer target neighbours come first (Warnsdorff's rule):
-        a cell that would be left behind as an isolated hole is covered now, which halves greedy's overlap
-        (README). With far_first, equally near targets farther from the agents' starting cells (steps over the
-        known passable cells) come first, so the walk sweeps away from the start and ends near it, as the
-        wavefront planner's does; in a team also those farther from the agent's working teammates (twice the mean
-        Manhattan steps to them), and an agent chases only targets no working teammate is nearer to (its Voronoi
-        region, in steps over the known passable cells; the far half of it first when it holds over 1.5 x the
-        team's mean, in a team of three or more) while it has any, then those of the region with the most, so the
-        team spreads out. With both, a target with no target neighbour (a hole if left) first, then the fewest
-        (target neighbours - steps from the start - 2 x mean steps to the teammates). The row-major or random
-        order then breaks the remaining ties."""
-        B, H, W, c = self.B, self.H, self.W, self.c
-        inner = (slice(None), slice(c, c + H), slice(c, c + W))
-        seen = self.seen[inner]
-        passable = seen & ~self.obstacle[inner]
-        if self.any_frozen:  # a frozen agent never moves off its cell: a path through it would wait forever (§7.5.3.3)
-            passable &= ~self._agent_cells_mask(np.arange(B), self.active & self.frozen)
-        passable, targets = _pack(np.stack([passable, passable & ~self.covered[inner]]))
-        known = np.bitwise_count(targets).sum((1, 2)) > 0
-        frontier = None if known.all() else self._frontier(passable, seen)
-        if frontier is not None:
-            targets = np.where(known[:, None, None], targets, frontier)
-        move, stuck = self._moves_toward(passable, targets, random_ties, dead_ends_first, far_first)
-        stuck &= known[:, None]
-        if stuck.any():  # a camera sees through walls: the known points of interest may lie past unseen cells only
-            frontier = self._frontier(passable, seen) if frontier is None else frontier
-            stuck &= (np.bitwise_count(frontier).sum((1, 2)) > 0)[:, None]
-        if stuck.any():
-            targets = np.where(stuck.any(1)[:, None, None], targets | frontier, targets)
-            move = np.where(stuck, self._moves_toward(passable, targets, random_ties, dead_ends_first, far_first)[0],
-                            move)
+# ----------------------------------------------------------------------------- the navigation heuristic
+# The heuristic (§6.3.1) and its one-step and multiagent rollouts: functions of a world (a GridWorldCore) that
+# read its state and never change it.
+def _grown(front: np.ndarray, Wp: int) -> np.ndarray:
+    """Flat bordered maps (n, P), rows Wp wide, grown by the 4-neighbourhood (the border stops wrap-around)."""
+    grown = front.copy()
+    grown[:, Wp:] |= front[:, :-Wp]
+    grown[:, :-Wp] |= front[:, Wp:]
+    grown[:, 1:] |= front[:, :-1]
+    grown[:, :-1] |= front[:, 1:]
+    return grown
+
+
+def _neighbours(poi: np.ndarray, Wp: int) -> np.ndarray:
+    """How many of each cell's 4 neighbours are points of interest, for flat bordered maps (n, P)."""
+    degree = np.zeros(poi.shape, np.int64)
+    degree[:, Wp:] += poi[:, :-Wp]
+    degree[:, :-Wp] += poi[:, Wp:]
+    degree[:, 1:] += poi[:, :-1]
+    degree[:, :-1] += poi[:, 1:]
+    return degree
+
+
+def _path_tables(free: np.ndarray, Wp: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Shortest paths between the free cells of one flat bordered map (row width Wp), for the rollouts' walkers:
+    the table row of each cell (-1 where not free); the distance from each free cell to every cell (int16, 32767
+    where unreachable); and the heuristic's first cell from each free cell toward every cell, where the walk back
+    from the goal, each step to the first closer cell in N, S, W, E order, ends."""
+    cells = np.flatnonzero(free)
+    n, P, far = len(cells), free.size, np.iinfo(np.int16).max
+    row = np.full(P, -1, np.int64)
+    row[cells] = np.arange(n)
+    dist = np.full((n, P), far, np.int16)
+    front = np.zeros((n, P), bool)
+    front[np.arange(n), cells] = True
+    visited, i = front.copy(), 0
+    while front.any():  # breadth-first from every free cell at once
+        dist[front] = i
+        front = _grown(front, Wp) & free & ~visited
+        visited |= front
+        i += 1
+    ahead = np.full((4, n, P), far, np.int16)  # the distance of each cell's N, S, W, E neighbour
+    ahead[0, :, Wp:], ahead[1, :, :-Wp], ahead[2, :, 1:], ahead[3, :, :-1] = (
+        dist[:, :-Wp], dist[:, Wp:], dist[:, :-1], dist[:, 1:])
+    back = (ahead == dist - 1).argmax(0)
+    here = np.arange(P)
+    first = np.where((dist >= 2) & (dist < far), here + np.array([-Wp, Wp, -1, 1])[back], here).astype(np.int32)
+    for _ in range(max(1, int(np.ceil(np.log2(max(i, 2)))))):  # pointer doubling: each pass halves the walk left
+        first = np.take_along_axis(first, first, 1)
+    return row, dist, first.astype(np.int16)
+
+
+def _symmetric(a: np.ndarray, k: int) -> np.ndarray:
+    """Boards (..., H, W) in the k-th of the square's 8 symmetries: transposed for k >= 4, then turned k % 4
+    quarter turns (np.rot90). The first 2 and the first 4 mix row-first and column-first scans (row-major ties)."""
+    if k >= 4:
+        a = np.swapaxes(a, -1, -2)
+    return np.ascontiguousarray(np.rot90(a, k % 4, axes=(-2, -1)))
+
+
+def _symmetric_cells(cells: np.ndarray, k: int, H: int, W: int) -> np.ndarray:
+    """Cells (n, 2) of H x W boards where _symmetric(board, k) has them."""
+    y, x = cells[:, 0], cells[:, 1]
+    if k >= 4:
+        y, x, H, W = x, y, W, H
+    for _ in range(k % 4):  # a quarter turn puts (y, x) at (W - 1 - x, y) of a W x H board
+        y, x, H, W = W - 1 - x, y, W, H
+    return np.stack([y, x], 1)
+
+
+@functools.cache
+def _symmetric_moves(k: int) -> np.ndarray:
+    """m[a]: the move of _symmetric(board, k) that is move a (N, S, W, E) of the board (read-only: cached)."""
+    d = ACTION_DELTAS[:4]
+    turned = _symmetric_cells(d + 1, k, 3, 3) - 1  # the moves as cells around the centre of a 3 x 3 board
+    moves = np.array([int(np.flatnonzero((d == t).all(1))[0]) for t in turned])
+    moves.setflags(write=False)
+    return moves
+
+
+_NEVER, _UNREACHED = np.iinfo(np.int64).max, np.iinfo(np.int16).max  # the walkers' 'no target' key, _path_tables' distance
+
+
+class _Walkers:
+    """Single agents following the deterministic navigation heuristic (heuristic_actions with
+    random_ties=False, one agent, full view) on bare maps, in lockstep: the rollouts' tries. A map is its free
+    cells and points of interest, flat with a border of obstacle; several walkers may share a map (`map_of`).
+    Only a walker with no point of interest next to it looks further: in its map's _path_tables where they are
+    given (a few array operations, and the target found is kept for the walk to it), else by a breadth-first
+    search; the others pick among their neighbours."""
+
+    def __init__(self, free: np.ndarray, poi: np.ndarray, cells: np.ndarray, dead_ends_first: bool,
+                 tables: list | None = None, start: np.ndarray | None = None):
+        n, H, W = free.shape
+        self.Wp, self.P, self.dead_ends_first = W + 2, (H + 2) * (W + 2), dead_ends_first
+        pad = np.zeros((2, n, H + 3, W + 2), bool)  # a spare row: a border cell's neighbours are in the array
+        pad[:, :, 1:H + 1, 1:-1] = free, poi
+        self.free, self.poi = pad[0].reshape(n, -1), pad[1].reshape(n, -1)
+        self.from_start = None  # far-first (start: the starting cells): each map's steps from them, flat
+        if start is not None:
+            steps = np.zeros((n, H + 3, W + 2), np.int64)
+            steps[:, 1:H + 1, 1:-1] = _distance_from(free, start)
+            self.from_start = steps.reshape(n, -1)
+        self.map_of = np.arange(n)
+        self.pos = (cells[:, 0] + 1) * self.Wp + cells[:, 1] + 1
+        self.goal = np.full(n, -1)  # a far walker's target from _look_up, kept until it is next to one (-1: none)
+        self.planned = np.full(n, -1)  # the last moves(): a walker stepping otherwise drops its goal
+        self.remaining = self.poi.sum(1)
+        self.delta = np.array([-self.Wp, self.Wp, -1, 1])  # N, S, W, E
+        self.tables = tables or [None] * n  # per map: _path_tables of its free cells, or None (search)
+
+    def take(self, rows: np.ndarray) -> _Walkers:
+        """The walkers `rows` (repeats allowed), each with its own copy of its points of interest."""
+        out = object.__new__(_Walkers)
+        out.__dict__.update(self.__dict__)
+        out.map_of, out.pos, out.remaining = self.map_of[rows], self.pos[rows], self.remaining[rows]
+        out.goal, out.planned = self.goal[rows], self.planned[rows]
+        out.poi = self.poi[rows]
+        return out
+
+    def _key(self, degree: np.ndarray, cells: np.ndarray, maps: np.ndarray) -> np.ndarray:
+        """The heuristic's order among equally near targets of walkers on `maps` (broadcast with cells): fewer
+        target neighbours first (dead-ends-first) minus steps from the start (far-first; with both, holes first),
+        then row-major (the border keeps flat order row-major)."""
+        rank = degree + self.P if self.dead_ends_first else np.full(np.shape(cells), self.P)
+        if self.from_start is not None:
+            if self.dead_ends_first:  # holes (no target neighbour) first, as heuristic_actions
+                rank = rank + np.where(degree > 0, 2 * self.P, 0)
+            rank = rank - self.from_start[maps, cells]
+        return rank * self.P + cells
+
+    def moves(self) -> np.ndarray:
+        """The heuristic's move of every walker (WAIT where no point of interest is reachable)."""
+        rows = np.arange(len(self.pos))
+        near = self.pos[:, None] + self.delta
+        target = self.poi[rows[:, None], near]
+        degree = self.poi[rows[:, None, None], near[..., None] + self.delta].sum(-1) if self.dead_ends_first else 0
+        key = np.where(target, self._key(degree, near, self.map_of[:, None]), _NEVER)
+        move = np.where(target.any(1), key.argmin(1), WAIT)
+        far = np.flatnonzero(~target.any(1))
+        self.goal[target.any(1)] = -1
+        if len(far):
+            tabled = np.array([self.tables[m] is not None for m in self.map_of[far]], bool)
+            if tabled.any():
+                move[far[tabled]] = self._look_up(far[tabled])
+            if not tabled.all():
+                move[far[~tabled]] = self._search(far[~tabled])
+        self.planned = move
         return move
 
-    def _frontier(self, passable: np.ndarray, seen: np.ndarray) -> np.ndarray:
-        """Known passable cells next to unseen ones, other than those agents stand on (bitboards, (B, H, words))."""
-        c, H, W = self.c, self.H, self.W
-        return passable & _dilate(~_pack(seen)) & ~_pack(self.occupied[:, c:c + H, c:c + W])
+    def _look_up(self, far: np.ndarray) -> np.ndarray:
+        """_search's moves from the walkers' _path_tables: the nearest targets by distance, ties by _key, and the
+        tabled first cell toward the chosen one. A walker keeps its target until it is next to one: its points of
+        interest do not change on the way and the target stays the nearest by that order (each step brings it
+        one closer, and any other one at most one), so only the first step of a walk searches."""
+        going = self.goal[far] >= 0
+        move = np.zeros(len(far), np.int64)
+        if going.any():
+            first = np.array([self.tables[m][2][self.tables[m][0][p], g] for m, p, g in
+                              zip(self.map_of[far[going]], self.pos[far[going]], self.goal[far[going]])], np.int64)
+            move[going] = (first[:, None] == self.pos[far[going], None] + self.delta).argmax(1)
+        if not going.all():
+            move[~going] = self._nearest_goal(far[~going])
+        return move
 
-    def _moves_toward(self, passable: np.ndarray, targets: np.ndarray, random_ties: bool, dead_ends_first: bool,
-                      far_first: bool) -> tuple[np.ndarray, np.ndarray]:
-        """heuristic_actions' search over bitboards (B, H, words): the first move of every agent, (B, N), and
-        whether each agent is working and reaches no target, (B, N)."""
-        B, N, H, W = self.B, self.N, self.H, self.W
-        M, rows = B * N, np.arange(B * N)
-        yx = self.agent_cells().reshape(M, 2)
-        working = self.active & ~self.frozen
-        b = np.repeat(np.arange(B), N)
-        pas, tg = (passable, targets) if N == 1 else (passable[b], targets[b])
-        front = np.zeros_like(pas)
-        on = working.ravel()  # absent (parked outside the map) and frozen agents search nothing and wait
-        front[rows[on], yx[on, 0], yx[on, 1] >> 6] = np.uint64(1) << (yx[on, 1] & 63).astype(np.uint64)
-        if far_first and N > 1:
-            tg = self._own_targets(pas, tg, front)
-        need = np.where(on, np.minimum(N, np.bitwise_count(tg).sum((1, 2), dtype=np.int64)), 0)
+    def _nearest_goal(self, far: np.ndarray) -> np.ndarray:
+        """_look_up for walkers without a target: it is chosen (and kept in self.goal) and the first move made."""
+        Wp = self.Wp
+        rows = [(self.tables[m], self.tables[m][0][p]) for m, p in zip(self.map_of[far], self.pos[far])]
+        dist = np.stack([t[1][r] for t, r in rows])
+        poi = self.poi[far]
+        dist = np.where(poi, dist, _UNREACHED)
+        nearest = dist == dist.min(1, keepdims=True)
+        degree = _neighbours(poi, Wp) if self.dead_ends_first else 0
+        key = self._key(degree, np.arange(poi.shape[1]), self.map_of[far, None])
+        goal = np.where(nearest & poi, key, _NEVER).argmin(1)
+        first = np.array([t[2][r, g] for (t, r), g in zip(rows, goal)], np.int64)
+        move = (first[:, None] == self.pos[far, None] + self.delta).argmax(1)
+        reached = poi.any(1) & (dist.min(1) < _UNREACHED)
+        self.goal[far] = np.where(reached, goal, -1)
+        return np.where(reached, move, WAIT)
+
+    def _search(self, far: np.ndarray) -> np.ndarray:
+        """Breadth-first search from walkers with no neighbouring target to their nearest one (ties by _key), and
+        the first move of the walk back from it (each step to the first closer cell in N, S, W, E order)."""
+        k, Wp, rows = len(far), self.Wp, np.arange(len(far))
+        free, poi = self.free[self.map_of[far]], self.poi[far]
+        front = np.zeros(poi.shape, bool)
+        front[rows, self.pos[far]] = True
         visited, layers = front.copy(), [front]
-        found = np.zeros(M, np.int64)
-        while (found < need).any():  # BFS from every agent until it has reached enough targets
-            front = _dilate(front) & pas & ~visited
+        goal, dist = np.zeros(k, np.int64), np.zeros(k, np.int64)
+        while True:
+            front = _grown(front, Wp) & free & ~visited
+            front[dist > 0] = False  # walkers that found their target stop
             if not front.any():
                 break
             visited |= front
             layers.append(front)
-            found += np.bitwise_count(tg & front).sum((1, 2), dtype=np.int64)
-            front = front * (found < need)[:, None, None]  # agents with enough targets stop
-        layers = np.stack(layers)  # (L, M, H, words): cells at each BFS distance
-        # every target each agent reached, as (agent, distance, cell); its N nearest are kept
-        hits = layers & tg[None]
-        l, m, y, word = np.nonzero(hits)
-        bits = np.unpackbits(hits[l, m, y, word].view(np.uint8).reshape(-1, 8), axis=1,
-                             bitorder="little")
-        k, bit = np.nonzero(bits)
-        l, m, cell = l[k], m[k], y[k] * W + word[k] * 64 + bit
-        tie = self.rng.random(len(l)) if random_ties else cell / (H * W)
-        rank = np.zeros(len(l), np.int64)  # the order among equally near targets, ahead of the tie in [0, 1)
-        if dead_ends_first:  # 4-neighbours that are targets too, 0-4
-            t = _unpack(targets, W).astype(np.int8)
-            degree = np.zeros_like(t)
-            degree[:, 1:] += t[:, :-1]
-            degree[:, :-1] += t[:, 1:]
-            degree[:, :, 1:] += t[:, :, :-1]
-            degree[:, :, :-1] += t[:, :, 1:]
-            rank += degree.reshape(B, H * W)[m // N, cell]
-        if far_first:
-            if dead_ends_first:  # a target with no target neighbour would be left as a hole: it still comes first
-                rank += np.where(rank > 0, 4 * (H + 1) * (W + 1), 0)  # past any (steps from start + to teammates)
-            rank -= self._steps_from_start(passable).reshape(B, H * W)[m // N, cell]
-        if far_first and N > 1:  # and away from the working teammates (mean Manhattan steps, twice): the team spreads out
-            world, y, x = m // N, cell // W, cell % W
-            apart = (np.abs(y[:, None] - yx[:, 0].reshape(B, N)[world])
-                     + np.abs(x[:, None] - yx[:, 1].reshape(B, N)[world]))
-            mates = working[world] & (np.arange(N) != (m % N)[:, None])
-            rank -= 2 * np.where(mates, apart, 0).sum(1) // np.maximum(mates.sum(1), 1)  # no working teammate: 0
-        if len(rank):  # squeezed into [0, 1): the distance stays the first key
-            tie = (rank - rank.min() + tie) / (rank.max() - rank.min() + 1)
-        order = np.lexsort((l + tie, m))
-        l, m, cell = l[order], m[order], cell[order]
-        rank = np.arange(len(m)) - np.searchsorted(m, m)
-        near = rank < N
-        cand_dist = np.full((M, N), np.inf)
-        cand_cell = np.full((M, N), -1)
-        cand_dist[m[near], rank[near]], cand_cell[m[near], rank[near]] = l[near], cell[near]
-        cand_dist, cand_cell = cand_dist.reshape(B, N * N), cand_cell.reshape(B, N * N)
-        goal = np.full((B, N), -1)
-        dist = np.zeros((B, N), np.int64)
-        for _ in range(N):  # claims: the nearest free (agent, target) pair of each world first
-            taken = (cand_cell[:, :, None] == goal[:, None, :]).any(-1) | (goal >= 0).repeat(N, 1)
-            d = np.where(taken, np.inf, cand_dist)
-            pair = d.argmin(1)
-            ok = np.flatnonzero(np.isfinite(d[np.arange(B), pair]))
-            if len(ok) == 0:
-                break
-            agent = pair[ok] // N
-            goal[ok, agent] = cand_cell[ok, pair[ok]]
-            dist[ok, agent] = cand_dist[ok, pair[ok]]
-        goal, dist = np.maximum(goal, 0).ravel(), dist.ravel()
-        goal = np.stack(np.divmod(goal, W), 1)
-        gy, gx = goal[:, 0], goal[:, 1]
+            hit = front & poi
+            found = np.flatnonzero(hit.any(1))
+            if len(found):
+                degree = _neighbours(poi[found], Wp) if self.dead_ends_first else 0
+                key = self._key(degree, np.arange(poi.shape[1]), self.map_of[far[found], None])
+                key = np.where(hit[found], key, _NEVER)
+                goal[found], dist[found] = key.argmin(1), len(layers) - 1
         for i in range(int(dist.max()) - 1, 0, -1):  # walk back from the goal to distance 1
-            ny, nx = gy[:, None] + ACTION_DELTAS[:4, 0], gx[:, None] + ACTION_DELTAS[:4, 1]
-            inside = (ny >= 0) & (ny < H) & (nx >= 0) & (nx < W)
-            ny, nx = ny % H, nx % W  # wrapped cells are masked by `inside`
-            word = layers[i, rows[:, None], ny, nx >> 6]
-            closer = inside & ((word >> (nx & 63).astype(np.uint64)) & np.uint64(1)).astype(bool)
-            pick = np.argmax(closer * self.rng.random((M, 4)) if random_ties else closer, 1)
-            walk = dist > i
-            gy = np.where(walk, ny[rows, pick], gy)
-            gx = np.where(walk, nx[rows, pick], gx)
-        has_goal = dist > 0
-        move = FIRST_STEP[np.where(has_goal, gy - yx[:, 0], 0) + 1, np.where(has_goal, gx - yx[:, 1], 0) + 1]
-        return move.reshape(B, N), ((found == 0) & working.ravel()).reshape(B, N)
+            near = goal[:, None] + self.delta
+            pick = layers[i][rows[:, None], near].argmax(1)
+            goal = np.where(dist > i, near[rows, pick], goal)
+        first = (goal[:, None] == self.pos[far, None] + self.delta).argmax(1)
+        return np.where(dist > 0, first, WAIT)
 
-    def _own_targets(self, passable: np.ndarray, targets: np.ndarray, cells: np.ndarray) -> np.ndarray:
-        """Each agent's targets in its Voronoi region: those no working teammate reaches in fewer steps over the
-        passable cells (a cell as near to two agents is in both regions). An agent whose region holds more than
-        1.5 x the team's mean, of three working agents or more, takes its far half first (_far_half), and an
-        agent with none there helps the agent with the most (its targets: that agent's), else keeps them all.
-        passable, targets: (B * N, H, words), each agent's copy of its world's; cells: each working agent's cell,
-        an empty board for the others."""
-        shape = (self.B, self.N) + passable.shape[1:]
-        passable, front = passable.reshape(shape), cells.reshape(shape)
-        agents = front  # the loop below rebinds front, never writes into it
-        region, reached = front.copy(), np.bitwise_or.reduce(front, 1)
-        while front.any():  # the agents' breadth-first searches grow together; a cell goes to those that reach it first
-            front = _dilate(front) & passable & ~reached[:, None]
-            region |= front
-            reached |= np.bitwise_or.reduce(front, 1)
-        own = targets & region.reshape(targets.shape)
-        count = np.bitwise_count(own).sum((1, 2)).reshape(self.B, self.N)
-        working = self.active & ~self.frozen  # the agents with a cell on `cells`
-        mean = np.where(working, count, 0).sum(1, keepdims=True) / np.maximum(working.sum(1, keepdims=True), 1)
-        # over 1.5 x the mean with three working agents or more; with two it cost more than it gained (docs/planners.md)
-        overloaded = (working & (count > 1.5 * mean) & (working.sum(1, keepdims=True) > 2)).ravel()
-        big = np.flatnonzero(overloaded)
-        if len(big):  # one search for each overloaded agent only
-            world = big // self.N
-            mates = np.bitwise_or.reduce(agents, 1)[world] & ~agents.reshape(own.shape)[big]
-            far = self._far_half(passable.reshape(own.shape)[big], mates, own[big])
-            far_too = np.bitwise_count(far).sum((1, 2)) > 0
-            own[big[far_too]] = far[far_too]
-        busiest = region[np.arange(self.B), count.argmax(1)]  # the lower index on a tie
-        helping = targets & np.repeat(busiest, self.N, 0)
-        own = np.where((count == 0).reshape(-1, 1, 1), helping, own)
-        return np.where((np.bitwise_count(own).sum((1, 2)) > 0)[:, None, None], own, targets)
+    def step(self, move: np.ndarray) -> None:
+        """Every walker moves (into a free cell, never WAIT) and covers the cell it enters."""
+        rows = np.arange(len(self.pos))
+        self.goal = np.where(move == self.planned, self.goal, -1)
+        self.pos = self.pos + self.delta[move]
+        self.remaining = self.remaining - self.poi[rows, self.pos]
+        self.poi[rows, self.pos] = False
 
-    @staticmethod
-    def _far_half(passable: np.ndarray, mates: np.ndarray, own: np.ndarray) -> np.ndarray:
-        """An agent's targets at least half as many steps (over the passable cells) from its nearest working
-        teammate as its farthest target is, and those no teammate reaches: an overloaded agent heads for the part
-        of its region no teammate will reach soon and leaves the near part to those who run out of work (a team
-        queueing behind one agent down a corridor to a large room is what it prevents). Measured from the
-        teammates, not from the agent itself, so the half does not move as the agent walks into it. passable,
-        mates (the working teammates' cells), own (its targets): one board per agent, (M, H, words)."""
-        front, seen, layers = mates, mates.copy(), [mates & own]
-        while front.any():
-            front = _dilate(front) & passable & ~seen
-            seen |= front
-            layers.append(front & own)
-        layers = np.stack(layers)  # (L, M, H, words): each agent's targets by steps from its nearest teammate
-        hit = np.bitwise_count(layers).sum((2, 3)) > 0
-        farthest = len(layers) - 1 - np.argmax(hit[::-1], 0)
-        half = np.arange(len(layers))[:, None] >= np.ceil(farthest / 2)
-        return np.bitwise_or.reduce(layers * half[..., None, None], 0) | (own & ~seen)
 
-    def _steps_from_start(self, passable: np.ndarray) -> np.ndarray:
-        """Steps from the agents' starting cells over the passable cells (bitboards, (B, H, words)), (B, H, W); a
-        world's are kept until its passable cells or starts change (with full information: once an episode)."""
-        c, H, W = self.c, self.H, self.W
-        key = np.concatenate([passable, _pack(self.start[:, c:c + H, c:c + W])], 1).reshape(self.B, -1)
-        old_key, steps = getattr(self, "_from_start", (None, None))
-        stale = np.ones(self.B, bool) if old_key is None or old_key.shape != key.shape else (old_key != key).any(1)
-        if stale.any():  # a copy: copies of this core may share the old array
-            steps = np.zeros((self.B, H, W), np.int64) if stale.all() else steps.copy()
-            steps[stale] = _distance_from(_unpack(passable[stale], W), self.start[stale, c:c + H, c:c + W])
-            self._from_start = (key, steps)
-        return steps
+def heuristic_actions(core: GridWorldCore, random_ties: bool = True, dead_ends_first: bool = False,
+                      far_first: bool = False) -> np.ndarray:
+    """One step along a shortest path to the nearest known point of interest for every agent at once, (B, N).
+    With several agents, targets are claimed greedily by distance (the nearest agent-target pair first, the
+    lower index on a tie), so no two agents chase one cell and a contested cell goes to the agent with the
+    shorter path. Ties between equally near targets and equally short paths are broken at random (§6.3.1: a
+    reinforced random walk), or with random_ties=False by the first target in row-major order and the first
+    move in N, S, W, E order. Paths use known free cells; a world with no known point of interest targets
+    its frontier (known free cells next to unseen ones), and so does an agent that reaches no known point of
+    interest over known cells (a camera sees through walls). An agent left without a target waits (WAIT).
+    With dead_ends_first, equally near targets with fewer target neighbours come first (Warnsdorff's rule):
+    a cell that would be left behind as an isolated hole is covered now, which halves greedy's overlap
+    (README). With far_first, equally near targets farther from the agents' starting cells (steps over the
+    known passable cells) come first, so the walk sweeps away from the start and ends near it, as the
+    wavefront planner's does; in a team also those farther from the agent's working teammates (twice the mean
+    Manhattan steps to them), and an agent chases only targets no working teammate is nearer to (its Voronoi
+    region, in steps over the known passable cells; the far half of it first when it holds over 1.5 x the
+    team's mean, in a team of three or more) while it has any, then those of the region with the most, so the
+    team spreads out. With both, a target with no target neighbour (a hole if left) first, then the fewest
+    (target neighbours - steps from the start - 2 x mean steps to the teammates). The row-major or random
+    order then breaks the remaining ties."""
+    B, H, W, c = core.B, core.H, core.W, core.c
+    inner = (slice(None), slice(c, c + H), slice(c, c + W))
+    seen = core.seen[inner]
+    passable = seen & ~core.obstacle[inner]
+    if core.any_frozen:  # a frozen agent never moves off its cell: a path through it would wait forever (§7.5.3.3)
+        passable &= ~core._agent_cells_mask(np.arange(B), core.active & core.frozen)
+    passable, targets = _pack(np.stack([passable, passable & ~core.covered[inner]]))
+    known = np.bitwise_count(targets).sum((1, 2)) > 0
+    frontier = None if known.all() else _frontier(core, passable, seen)
+    if frontier is not None:
+        targets = np.where(known[:, None, None], targets, frontier)
+    move, stuck = _moves_toward(core, passable, targets, random_ties, dead_ends_first, far_first)
+    stuck &= known[:, None]
+    if stuck.any():  # a camera sees through walls: the known points of interest may lie past unseen cells only
+        frontier = _frontier(core, passable, seen) if frontier is None else frontier
+        stuck &= (np.bitwise_count(frontier).sum((1, 2)) > 0)[:, None]
+    if stuck.any():
+        targets = np.where(stuck.any(1)[:, None, None], targets | frontier, targets)
+        move = np.where(stuck, _moves_toward(core, passable, targets, random_ties, dead_ends_first, far_first)[0],
+                        move)
+    return move
 
-    def rollout_actions(self, worlds=None, dead_ends_first: bool = True, max_steps: int | None = None,
-                        view: str = "full", costs: bool = False, far_first: bool = False, symmetries: int = 1):
-        """The one-step rollout (Bertsekas) of the deterministic heuristic (random_ties=False; greedy-dead-ends
-        by default) for one agent, batched: in each given world (all by default; a bool mask or indices) try
-        each move, finish each try with the heuristic and take the move with the fewest total steps (the
-        heuristic's own move on ties, then N, S, W, E order), (len(worlds),) actions. With view="full" it plans
-        on the full state (map, coverage), also in sensor tasks: a privileged teacher, not a policy of the
-        observation. With view="known" it plans on the agent's known map (a policy of what it has seen): unknown
-        cells are free points of interest, except those walled in by known obstacles (unreachable, so obstacles).
 
-        The tries are walkers of _Walkers (the heuristic's moves on bare maps: no battery, rewards or sensing),
-        one per legal move, run in lockstep, so the first to finish has the fewest steps and decides its world;
-        a blocked move is not a try, and a world with a single try takes it at once. A try that can reach no
-        point of interest never finishes. After max_steps steps (default 4 * H * W) the heuristic's own move is
-        kept. A finished world, or one whose agent is absent or frozen, gets the heuristic's move (WAIT). This
-        core is not changed (nor its random stream). With costs=True every try runs on to its end and it also
-        returns (len(worlds), 4) steps to cover the map after each first move, that move included (max_steps
-        where the heuristic cannot finish, -1 for a move not tried: blocked, or a world's only move). With
-        far_first the heuristic (the base and the tries) takes far-first ties (heuristic_actions).
+def _frontier(core: GridWorldCore, passable: np.ndarray, seen: np.ndarray) -> np.ndarray:
+    """Known passable cells next to unseen ones, other than those agents stand on (bitboards, (B, H, words))."""
+    c, H, W = core.c, core.H, core.W
+    return passable & _dilate(~_pack(seen)) & ~_pack(core.occupied[:, c:c + H, c:c + W])
 
-        With symmetries k > 1 the tries also run in k - 1 mirrored or turned copies of each world (_symmetric's
-        order) and a move's cost is its mean over the k copies (costs: floats). The heuristic's last tie order
-        (row-major) is arbitrary, and one copy's cheapest move is another's at only ~84% of the states where they
-        differ; the mean is a steadier label (benchmarks/label_symmetry.py). The move taken is the cheapest by the
-        mean among those whose steps in the world itself are no more than the heuristic's move's: each step then
-        shortens the heuristic's own steps to the end, so the walk is never longer than the heuristic's (a mean
-        alone can send an agent back and forth)."""
-        if self.N != 1:
-            raise ValueError(f"rollout_actions plans for one agent, the worlds have {self.N}")
-        if view not in ("full", "known"):
-            raise ValueError(f"rollout_actions: view must be 'full' or 'known', got {view!r}")
-        if symmetries not in (1, 2, 4, 8):
-            raise ValueError(f"rollout_actions: symmetries must be 1, 2, 4 or 8, got {symmetries}")
-        w = self._world_indices(worlds)
-        n, K = len(w), 4
-        if n == 0:
-            return (np.zeros(0, np.int64), np.zeros((0, K), np.int64)) if costs else np.zeros(0, np.int64)
-        c, H, W = self.c, self.H, self.W
-        inner = (w, slice(c, c + H), slice(c, c + W))
-        free, covered = ~self.obstacle[inner], self.covered[inner]
-        if view == "known":  # the optimistic known map: what the agent can reach and has not seen is to cover
-            unknown = ~self.seen[inner]
-            free = flood(free | unknown, self.occupied[inner])
-            covered = covered & ~unknown
-        agent = self.active[w, 0] & ~self.frozen[w, 0]
-        cells = np.where(agent[:, None], self.agent_cells()[w, 0], 0)  # an absent agent is parked off the map
-        start = self.start[inner] if far_first else None
-        out, steps, base = self._rollout_tries(w, free, covered, cells, agent, start, dead_ends_first, view,
-                                               max_steps, costs or symmetries > 1)
-        if symmetries == 1:
-            return (out, steps) if costs else out
-        total = steps.astype(np.float64)
-        for k in range(1, symmetries):
-            turned = [None if a is None else _symmetric(a, k) for a in (free, covered, start)]
-            _, more, _ = self._rollout_tries(w, turned[0], turned[1], _symmetric_cells(cells, k, H, W), agent,
-                                             turned[2], dead_ends_first, view, max_steps, True)
-            total += more[:, _symmetric_moves(k)]
-        mean = total / symmetries  # -1 where the move is not a try, in every copy alike
-        decided = (mean >= 0).sum(1) >= 2
-        own = steps[np.arange(n), np.minimum(base, K - 1)]
-        safe = (steps >= 0) & (steps <= own[:, None])  # no dearer than the heuristic's move in this world itself
-        priority = np.where(np.arange(K) == base[:, None], -1, np.arange(K))  # ties: the heuristic's, then N, S, W, E
-        order = np.lexsort((priority, np.where(safe, mean, np.inf)), axis=1)
-        out = np.where(decided, order[:, 0], out)
-        return (out, mean) if costs else out
 
-    def _rollout_tries(self, w, free, covered, cells, agent, start, dead_ends_first, view, max_steps, costs):
-        """rollout_actions on given boards (n, H, W) of the worlds w: its actions, its costs (with costs) and the
-        heuristic's own moves."""
-        n, K, H, W = len(w), 4, self.H, self.W
-        walkers = _Walkers(free, free & ~covered, cells, dead_ends_first, start=start)
-        if view == "full":  # the map of an episode does not change: its tables serve every later call
-            walkers.tables = self._path_tables_of(walkers.free, walkers.Wp)
-        base = walkers.moves()  # the heuristic's own move on the state planned on
-        out = np.where(agent, base, WAIT)
-        live = (self.remaining[w] > 0) & agent & (walkers.remaining > 0)
-        moves = np.arange(K)
-        run = walkers.free[np.arange(n)[:, None], walkers.pos[:, None] + walkers.delta] & live[:, None]
-        single = run.sum(1) == 1
-        out[single] = run[single].argmax(1)
-        run[single] = False
-        priority = np.where(moves == base[:, None], -1, moves)  # ties: the heuristic's move, then N, S, W, E
-        owner = np.flatnonzero(run.ravel())  # the (world, move) of each walker, flat
-        walkers = walkers.take(owner // K)
-        walkers.step(owner % K)
-        limit = 4 * H * W if max_steps is None else max_steps
-        open_ = np.ones(n, bool)  # worlds not decided yet
-        steps = np.where(run, limit, -1)  # costs: each try's steps to the end
-        for t in range(1, limit + 1):  # t: the steps each running try has taken
-            done = np.zeros(n * K, bool)
-            done[owner] = walkers.remaining == 0
-            done = done.reshape(n, K)
-            steps[done] = t
-            decided = done.any(1) & open_
-            if decided.any():
-                out[decided] = np.where(done[decided], priority[decided], K).argmin(1)
-                open_[decided] = False
-                run[decided] &= costs  # with costs the other tries run on
-            run &= ~done
-            if t == limit:
-                break
-            move = walkers.moves()
-            keep = run.ravel()[owner] & (move < WAIT)  # a walker with no reachable target never finishes
-            if not keep.all():
-                owner, walkers, move = owner[keep], walkers.take(np.flatnonzero(keep)), move[keep]
-            if len(owner) == 0:
-                break
-            walkers.step(move)
-        return out, steps, base
+def _moves_toward(core: GridWorldCore, passable: np.ndarray, targets: np.ndarray, random_ties: bool, dead_ends_first: bool,
+                  far_first: bool) -> tuple[np.ndarray, np.ndarray]:
+    """heuristic_actions' search over bitboards (B, H, words): the first move of every agent, (B, N), and
+    whether each agent is working and reaches no target, (B, N)."""
+    B, N, H, W = core.B, core.N, core.H, core.W
+    M, rows = B * N, np.arange(B * N)
+    yx = core.agent_cells().reshape(M, 2)
+    working = core.active & ~core.frozen
+    b = np.repeat(np.arange(B), N)
+    pas, tg = (passable, targets) if N == 1 else (passable[b], targets[b])
+    front = np.zeros_like(pas)
+    on = working.ravel()  # absent (parked outside the map) and frozen agents search nothing and wait
+    front[rows[on], yx[on, 0], yx[on, 1] >> 6] = np.uint64(1) << (yx[on, 1] & 63).astype(np.uint64)
+    if far_first and N > 1:
+        tg = _own_targets(core, pas, tg, front)
+    need = np.where(on, np.minimum(N, np.bitwise_count(tg).sum((1, 2), dtype=np.int64)), 0)
+    visited, layers = front.copy(), [front]
+    found = np.zeros(M, np.int64)
+    while (found < need).any():  # BFS from every agent until it has reached enough targets
+        front = _dilate(front) & pas & ~visited
+        if not front.any():
+            break
+        visited |= front
+        layers.append(front)
+        found += np.bitwise_count(tg & front).sum((1, 2), dtype=np.int64)
+        front = front * (found < need)[:, None, None]  # agents with enough targets stop
+    layers = np.stack(layers)  # (L, M, H, words): cells at each BFS distance
+    # every target each agent reached, as (agent, distance, cell); its N nearest are kept
+    hits = layers & tg[None]
+    l, m, y, word = np.nonzero(hits)
+    bits = np.unpackbits(hits[l, m, y, word].view(np.uint8).reshape(-1, 8), axis=1,
+                         bitorder="little")
+    k, bit = np.nonzero(bits)
+    l, m, cell = l[k], m[k], y[k] * W + word[k] * 64 + bit
+    tie = core.rng.random(len(l)) if random_ties else cell / (H * W)
+    rank = np.zeros(len(l), np.int64)  # the order among equally near targets, ahead of the tie in [0, 1)
+    if dead_ends_first:  # 4-neighbours that are targets too, 0-4
+        t = _unpack(targets, W).astype(np.int8)
+        degree = np.zeros_like(t)
+        degree[:, 1:] += t[:, :-1]
+        degree[:, :-1] += t[:, 1:]
+        degree[:, :, 1:] += t[:, :, :-1]
+        degree[:, :, :-1] += t[:, :, 1:]
+        rank += degree.reshape(B, H * W)[m // N, cell]
+    if far_first:
+        if dead_ends_first:  # a target with no target neighbour would be left as a hole: it still comes first
+            rank += np.where(rank > 0, 4 * (H + 1) * (W + 1), 0)  # past any (steps from start + to teammates)
+        rank -= _steps_from_start(core, passable).reshape(B, H * W)[m // N, cell]
+    if far_first and N > 1:  # and away from the working teammates (mean Manhattan steps, twice): the team spreads out
+        world, y, x = m // N, cell // W, cell % W
+        apart = (np.abs(y[:, None] - yx[:, 0].reshape(B, N)[world])
+                 + np.abs(x[:, None] - yx[:, 1].reshape(B, N)[world]))
+        mates = working[world] & (np.arange(N) != (m % N)[:, None])
+        rank -= 2 * np.where(mates, apart, 0).sum(1) // np.maximum(mates.sum(1), 1)  # no working teammate: 0
+    if len(rank):  # squeezed into [0, 1): the distance stays the first key
+        tie = (rank - rank.min() + tie) / (rank.max() - rank.min() + 1)
+    order = np.lexsort((l + tie, m))
+    l, m, cell = l[order], m[order], cell[order]
+    rank = np.arange(len(m)) - np.searchsorted(m, m)
+    near = rank < N
+    cand_dist = np.full((M, N), np.inf)
+    cand_cell = np.full((M, N), -1)
+    cand_dist[m[near], rank[near]], cand_cell[m[near], rank[near]] = l[near], cell[near]
+    cand_dist, cand_cell = cand_dist.reshape(B, N * N), cand_cell.reshape(B, N * N)
+    goal = np.full((B, N), -1)
+    dist = np.zeros((B, N), np.int64)
+    for _ in range(N):  # claims: the nearest free (agent, target) pair of each world first
+        taken = (cand_cell[:, :, None] == goal[:, None, :]).any(-1) | (goal >= 0).repeat(N, 1)
+        d = np.where(taken, np.inf, cand_dist)
+        pair = d.argmin(1)
+        ok = np.flatnonzero(np.isfinite(d[np.arange(B), pair]))
+        if len(ok) == 0:
+            break
+        agent = pair[ok] // N
+        goal[ok, agent] = cand_cell[ok, pair[ok]]
+        dist[ok, agent] = cand_dist[ok, pair[ok]]
+    goal, dist = np.maximum(goal, 0).ravel(), dist.ravel()
+    goal = np.stack(np.divmod(goal, W), 1)
+    gy, gx = goal[:, 0], goal[:, 1]
+    for i in range(int(dist.max()) - 1, 0, -1):  # walk back from the goal to distance 1
+        ny, nx = gy[:, None] + ACTION_DELTAS[:4, 0], gx[:, None] + ACTION_DELTAS[:4, 1]
+        inside = (ny >= 0) & (ny < H) & (nx >= 0) & (nx < W)
+        ny, nx = ny % H, nx % W  # wrapped cells are masked by `inside`
+        word = layers[i, rows[:, None], ny, nx >> 6]
+        closer = inside & ((word >> (nx & 63).astype(np.uint64)) & np.uint64(1)).astype(bool)
+        pick = np.argmax(closer * core.rng.random((M, 4)) if random_ties else closer, 1)
+        walk = dist > i
+        gy = np.where(walk, ny[rows, pick], gy)
+        gx = np.where(walk, nx[rows, pick], gx)
+    has_goal = dist > 0
+    move = FIRST_STEP[np.where(has_goal, gy - yx[:, 0], 0) + 1, np.where(has_goal, gx - yx[:, 1], 0) + 1]
+    return move.reshape(B, N), ((found == 0) & working.ravel()).reshape(B, N)
 
-    def _path_tables_of(self, free: np.ndarray, Wp: int) -> list:
-        """_path_tables of each flat bordered map (n, P), kept between calls by map. A map over PATH_TABLE_CELLS
-        free cells, or one whose tables would pass PATH_TABLE_BYTES after dropping those the last call did not
-        use, gets None (its walkers search)."""
-        self.path_calls += 1
-        out = []
-        for m in free:
-            key = (Wp, m.tobytes())
-            entry = self.path_cache.get(key)
-            n = int(m.sum())
-            if entry is None and n <= self.PATH_TABLE_CELLS:
-                size = 4 * n * m.size
-                used = sum(e[2] for e in self.path_cache.values())
-                for old in [k for k, e in self.path_cache.items() if e[1] < self.path_calls - 1]:
-                    if used + size <= self.PATH_TABLE_BYTES:
-                        break
-                    used -= self.path_cache.pop(old)[2]
-                if used + size <= self.PATH_TABLE_BYTES:
-                    entry = self.path_cache[key] = [_path_tables(m, Wp), 0, size]
-            if entry is not None:
-                entry[1] = self.path_calls
-            out.append(None if entry is None else entry[0])
-        return out
 
-    def _scratch(self, m: int) -> GridWorldCore:
-        """m empty worlds of this core's geometry (its agents, full sensor: no sensing) for the rollouts."""
-        scratch = GridWorldCore(EnvConfig(view_size=self.config.view_size, number_agents=self.N), m)
-        if (scratch.H, scratch.W) != (self.H, self.W):
-            scratch._allocate(self.H, self.W, self.N, None)
-        return scratch
+def _own_targets(core: GridWorldCore, passable: np.ndarray, targets: np.ndarray, cells: np.ndarray) -> np.ndarray:
+    """Each agent's targets in its Voronoi region: those no working teammate reaches in fewer steps over the
+    passable cells (a cell as near to two agents is in both regions). An agent whose region holds more than
+    1.5 x the team's mean, of three working agents or more, takes its far half first (_far_half), and an
+    agent with none there helps the agent with the most (its targets: that agent's), else keeps them all.
+    passable, targets: (B * N, H, words), each agent's copy of its world's; cells: each working agent's cell,
+    an empty board for the others."""
+    shape = (core.B, core.N) + passable.shape[1:]
+    passable, front = passable.reshape(shape), cells.reshape(shape)
+    agents = front  # the loop below rebinds front, never writes into it
+    region, reached = front.copy(), np.bitwise_or.reduce(front, 1)
+    while front.any():  # the agents' breadth-first searches grow together; a cell goes to those that reach it first
+        front = _dilate(front) & passable & ~reached[:, None]
+        region |= front
+        reached |= np.bitwise_or.reduce(front, 1)
+    own = targets & region.reshape(targets.shape)
+    count = np.bitwise_count(own).sum((1, 2)).reshape(core.B, core.N)
+    working = core.active & ~core.frozen  # the agents with a cell on `cells`
+    mean = np.where(working, count, 0).sum(1, keepdims=True) / np.maximum(working.sum(1, keepdims=True), 1)
+    # over 1.5 x the mean with three working agents or more; with two it cost more than it gained (docs/planners.md)
+    overloaded = (working & (count > 1.5 * mean) & (working.sum(1, keepdims=True) > 2)).ravel()
+    big = np.flatnonzero(overloaded)
+    if len(big):  # one search for each overloaded agent only
+        world = big // core.N
+        mates = np.bitwise_or.reduce(agents, 1)[world] & ~agents.reshape(own.shape)[big]
+        far = _far_half(passable.reshape(own.shape)[big], mates, own[big])
+        far_too = np.bitwise_count(far).sum((1, 2)) > 0
+        own[big[far_too]] = far[far_too]
+    busiest = region[np.arange(core.B), count.argmax(1)]  # the lower index on a tie
+    helping = targets & np.repeat(busiest, core.N, 0)
+    own = np.where((count == 0).reshape(-1, 1, 1), helping, own)
+    return np.where((np.bitwise_count(own).sum((1, 2)) > 0)[:, None, None], own, targets)
 
-    def _compacted(self, scratch: GridWorldCore, owner: np.ndarray, alive: np.ndarray):
-        """The rollouts' scratch core rebuilt without its stopped tries once they are half of it (stepping frozen
-        worlds still costs), with the owners and liveness of the kept ones."""
-        if 2 * alive.sum() > len(owner) or len(owner) <= 8:
-            return scratch, owner, alive
-        keep = np.flatnonzero(alive)
-        small = self._scratch(len(keep))
-        small.copy_worlds(keep, np.arange(len(keep)), source=scratch)
-        return small, owner[keep], alive[keep]
 
-    def _world_indices(self, worlds) -> np.ndarray:
-        """The indices of the given worlds: all (None), a bool mask or indices."""
-        if worlds is None:
-            return np.arange(self.B)
-        w = np.asarray(worlds)
-        return np.flatnonzero(w) if w.dtype == bool else w.astype(np.int64).ravel()
+def _far_half(passable: np.ndarray, mates: np.ndarray, own: np.ndarray) -> np.ndarray:
+    """An agent's targets at least half as many steps (over the passable cells) from its nearest working
+    teammate as its farthest target is, and those no teammate reaches: an overloaded agent heads for the part
+    of its region no teammate will reach soon and leaves the near part to those who run out of work (a team
+    queueing behind one agent down a corridor to a large room is what it prevents). Measured from the
+    teammates, not from the agent itself, so the half does not move as the agent walks into it. passable,
+    mates (the working teammates' cells), own (its targets): one board per agent, (M, H, words)."""
+    front, seen, layers = mates, mates.copy(), [mates & own]
+    while front.any():
+        front = _dilate(front) & passable & ~seen
+        seen |= front
+        layers.append(front & own)
+    layers = np.stack(layers)  # (L, M, H, words): each agent's targets by steps from its nearest teammate
+    hit = np.bitwise_count(layers).sum((2, 3)) > 0
+    farthest = len(layers) - 1 - np.argmax(hit[::-1], 0)
+    half = np.arange(len(layers))[:, None] >= np.ceil(farthest / 2)
+    return np.bitwise_or.reduce(layers * half[..., None, None], 0) | (own & ~seen)
 
-    def team_rollout_actions(self, worlds=None, dead_ends_first: bool = True, max_steps: int | None = None,
-                             far_first: bool = False) -> np.ndarray:
-        """The multiagent rollout (Bertsekas 2020, "Multiagent rollout algorithms and reinforcement learning") of the
-        deterministic heuristic with claims (random_ties=False; greedy-dead-ends by default), batched: in each given
-        world (all by default; a bool mask or indices) the agents choose in index order, agent i trying each of its
-        moves with agents < i on their chosen moves and agents > i on the heuristic's; each try is finished by the
-        heuristic for the whole team and the cheapest is kept: the fewest steps until every point of interest is
-        covered (the team makespan), then the fewest agent moves, then the heuristic's own move, then N, S, W, E, WAIT
-        order. (len(worlds), N) actions from at most 4 tries an agent besides the incumbent, not 5^N joint moves (WAIT
-        is a move for several agents; a single agent never gains by waiting, so with one agent this is rollout_actions).
-        Like rollout_actions it plans on the full state (map, coverage), also in sensor tasks: a privileged teacher,
-        not a policy of the observation.
 
-        Agent i's tries are copies (copy_worlds) of their world in a scratch core, run in lockstep with one batched
-        heuristic call a step; moves into obstacles are not tried. The incumbent (agent i on the heuristic's move) is
-        the previous agent's winner, so its cost is known and only agent 0's is simulated; a try stops once it cannot
-        beat the incumbent (it needs at least steps + ceil(remaining / working agents) steps and moves + remaining
-        moves), and a world decides when its first try finishes (the others need more steps) or the incumbent's step
-        count is reached. After max_steps steps (default 4 * H * W: a heuristic that cannot finish) agent i keeps the
-        heuristic's move. Absent and frozen agents get WAIT, finished worlds the heuristic's moves. This core is not
-        changed (nor its random stream). With far_first the heuristic takes far-first ties (heuristic_actions)."""
-        w = self._world_indices(worlds)
-        n, N = len(w), self.N
-        K = 4 if N == 1 else 5  # WAIT only lets another agent by
-        if n == 0:
-            return np.zeros((0, N), np.int64)
-        c = self.c
-        inner = (slice(None), slice(c, c + self.H), slice(c, c + self.W))
-        probe = self._scratch(n)
-        probe.copy_worlds(w, np.arange(n), source=self)
-        probe.seen[inner] = True  # the full state (outside the map is obstacle)
-        chosen = probe.heuristic_actions(False, dead_ends_first, far_first)  # agents < i: chosen; agents >= i: the heuristic's
-        working = self.active[w] & ~self.frozen[w]
-        n_work = np.maximum(working.sum(1), 1)[:, None]
-        live = self.remaining[w] > 0
-        cost = np.full((n, 2), np.inf)  # the incumbent's steps and agent moves to finish, where known
-        moves, rows = np.arange(K), np.arange(n)
-        moves0 = self.agent_moves[w][:, None]
-        limit = 4 * self.H * self.W if max_steps is None else max_steps
-        for i in range(N):  # the sequential choice: agent i knows the moves of agents < i
-            tgt = self.pos[w, i, None] + self.delta[:K]
-            legal = (~self.views["obstacle"][tgt] | (moves == WAIT)) & (live & working[:, i])[:, None]
-            known = np.isfinite(cost[:, :1])
-            incumbent = moves == chosen[:, i, None]
-            single = ~known[:, 0] & (legal.sum(1) == 1)  # nothing to compare: the only move is taken
-            chosen[single, i] = legal[single].argmax(1)
-            run = legal & ~single[:, None] & ~(incumbent & known)  # (n, K) tries still running
-            if not run.any():
-                continue
-            owner = np.flatnonzero(run.ravel())  # the (world, move) of each scratch world, flat
-            scratch = self._scratch(len(owner))
-            scratch.copy_worlds(w[owner // K], np.arange(len(owner)), source=self)
-            scratch.seen[inner] = True
-            first = chosen[owner // K]
-            first[:, i] = owner % K
-            scratch.step(first)
-            tie = np.where(incumbent, 0, moves + 1)  # ties: the heuristic's move, then N, S, W, E, WAIT
-            for t in range(1, limit + 1):  # t: the steps each running try has taken
-                remaining, moved = np.zeros(n * K, np.int64), np.zeros(n * K, np.int64)
-                remaining[owner], moved[owner] = scratch.remaining, scratch.agent_moves
-                remaining, moved = remaining.reshape(n, K), moved.reshape(n, K) - moves0
-                done = run & (remaining == 0)
-                key = np.where(done, moved * (K + 1) + tie, np.inf)
-                best = key.argmin(1)
-                decided = done.any(1) | (cost[:, 0] <= t)
-                win = decided & (key[rows, best] < np.where(cost[:, 0] == t, cost[:, 1] * (K + 1), np.inf))
-                chosen[win, i] = best[win]
-                cost[win] = np.stack([np.full(win.sum(), t), moved[win, best[win]]], 1)
-                run[decided] = False
-                steps_lb, moves_lb = t + -(-remaining // n_work), moved + remaining
-                run &= (steps_lb < cost[:, :1]) | ((steps_lb == cost[:, :1]) & (moves_lb < cost[:, 1:]))
-                if not run.any() or t == limit:
+def _steps_from_start(core: GridWorldCore, passable: np.ndarray) -> np.ndarray:
+    """Steps from the agents' starting cells over the passable cells (bitboards, (B, H, words)), (B, H, W); a
+    world's are kept until its passable cells or starts change (with full information: once an episode)."""
+    c, H, W = core.c, core.H, core.W
+    key = np.concatenate([passable, _pack(core.start[:, c:c + H, c:c + W])], 1).reshape(core.B, -1)
+    old_key, steps = getattr(core, "_from_start", (None, None))
+    stale = np.ones(core.B, bool) if old_key is None or old_key.shape != key.shape else (old_key != key).any(1)
+    if stale.any():  # a copy: copies of this core may share the old array
+        steps = np.zeros((core.B, H, W), np.int64) if stale.all() else steps.copy()
+        steps[stale] = _distance_from(_unpack(passable[stale], W), core.start[stale, c:c + H, c:c + W])
+        core._from_start = (key, steps)
+    return steps
+
+
+def rollout_actions(core: GridWorldCore, worlds=None, dead_ends_first: bool = True, max_steps: int | None = None,
+                    view: str = "full", costs: bool = False, far_first: bool = False, symmetries: int = 1):
+    """The one-step rollout (Bertsekas) of the deterministic heuristic (random_ties=False; greedy-dead-ends
+    by default) for one agent, batched: in each given world (all by default; a bool mask or indices) try
+    each move, finish each try with the heuristic and take the move with the fewest total steps (the
+    heuristic's own move on ties, then N, S, W, E order), (len(worlds),) actions. With view="full" it plans
+    on the full state (map, coverage), also in sensor tasks: a privileged teacher, not a policy of the
+    observation. With view="known" it plans on the agent's known map (a policy of what it has seen): unknown
+    cells are free points of interest, except those walled in by known obstacles (unreachable, so obstacles).
+
+    The tries are walkers of _Walkers (the heuristic's moves on bare maps: no battery, rewards or sensing),
+    one per legal move, run in lockstep, so the first to finish has the fewest steps and decides its world;
+    a blocked move is not a try, and a world with a single try takes it at once. A try that can reach no
+    point of interest never finishes. After max_steps steps (default 4 * H * W) the heuristic's own move is
+    kept. A finished world, or one whose agent is absent or frozen, gets the heuristic's move (WAIT). This
+    core is not changed (nor its random stream). With costs=True every try runs on to its end and it also
+    returns (len(worlds), 4) steps to cover the map after each first move, that move included (max_steps
+    where the heuristic cannot finish, -1 for a move not tried: blocked, or a world's only move). With
+    far_first the heuristic (the base and the tries) takes far-first ties (heuristic_actions).
+
+    With symmetries k > 1 the tries also run in k - 1 mirrored or turned copies of each world (_symmetric's
+    order) and a move's cost is its mean over the k copies (costs: floats). The heuristic's last tie order
+    (row-major) is arbitrary, and one copy's cheapest move is another's at only ~84% of the states where they
+    differ; the mean is a steadier label (docs/experiments.md). The move taken is the cheapest by the
+    mean among those whose steps in the world itself are no more than the heuristic's move's: each step then
+    shortens the heuristic's own steps to the end, so the walk is never longer than the heuristic's (a mean
+    alone can send an agent back and forth)."""
+    if core.N != 1:
+        raise ValueError(f"rollout_actions plans for one agent, the worlds have {core.N}")
+    if view not in ("full", "known"):
+        raise ValueError(f"rollout_actions: view must be 'full' or 'known', got {view!r}")
+    if symmetries not in (1, 2, 4, 8):
+        raise ValueError(f"rollout_actions: symmetries must be 1, 2, 4 or 8, got {symmetries}")
+    w = core._world_indices(worlds)
+    n, K = len(w), 4
+    if n == 0:
+        return (np.zeros(0, np.int64), np.zeros((0, K), np.int64)) if costs else np.zeros(0, np.int64)
+    c, H, W = core.c, core.H, core.W
+    inner = (w, slice(c, c + H), slice(c, c + W))
+    free, covered = ~core.obstacle[inner], core.covered[inner]
+    if view == "known":  # the optimistic known map: what the agent can reach and has not seen is to cover
+        unknown = ~core.seen[inner]
+        free = flood(free | unknown, core.occupied[inner])
+        covered = covered & ~unknown
+    agent = core.active[w, 0] & ~core.frozen[w, 0]
+    cells = np.where(agent[:, None], core.agent_cells()[w, 0], 0)  # an absent agent is parked off the map
+    start = core.start[inner] if far_first else None
+    out, steps, base = _rollout_tries(core, w, free, covered, cells, agent, start, dead_ends_first, view,
+                                           max_steps, costs or symmetries > 1)
+    if symmetries == 1:
+        return (out, steps) if costs else out
+    total = steps.astype(np.float64)
+    for k in range(1, symmetries):
+        turned = [None if a is None else _symmetric(a, k) for a in (free, covered, start)]
+        _, more, _ = _rollout_tries(core, w, turned[0], turned[1], _symmetric_cells(cells, k, H, W), agent,
+                                         turned[2], dead_ends_first, view, max_steps, True)
+        total += more[:, _symmetric_moves(k)]
+    mean = total / symmetries  # -1 where the move is not a try, in every copy alike
+    decided = (mean >= 0).sum(1) >= 2
+    own = steps[np.arange(n), np.minimum(base, K - 1)]
+    safe = (steps >= 0) & (steps <= own[:, None])  # no dearer than the heuristic's move in this world itself
+    priority = np.where(np.arange(K) == base[:, None], -1, np.arange(K))  # ties: the heuristic's, then N, S, W, E
+    order = np.lexsort((priority, np.where(safe, mean, np.inf)), axis=1)
+    out = np.where(decided, order[:, 0], out)
+    return (out, mean) if costs else out
+
+
+def _rollout_tries(core: GridWorldCore, w, free, covered, cells, agent, start, dead_ends_first, view, max_steps, costs):
+    """rollout_actions on given boards (n, H, W) of the worlds w: its actions, its costs (with costs) and the
+    heuristic's own moves."""
+    n, K, H, W = len(w), 4, core.H, core.W
+    walkers = _Walkers(free, free & ~covered, cells, dead_ends_first, start=start)
+    if view == "full":  # the map of an episode does not change: its tables serve every later call
+        walkers.tables = _path_tables_of(core, walkers.free, walkers.Wp)
+    base = walkers.moves()  # the heuristic's own move on the state planned on
+    out = np.where(agent, base, WAIT)
+    live = (core.remaining[w] > 0) & agent & (walkers.remaining > 0)
+    moves = np.arange(K)
+    run = walkers.free[np.arange(n)[:, None], walkers.pos[:, None] + walkers.delta] & live[:, None]
+    single = run.sum(1) == 1
+    out[single] = run[single].argmax(1)
+    run[single] = False
+    priority = np.where(moves == base[:, None], -1, moves)  # ties: the heuristic's move, then N, S, W, E
+    owner = np.flatnonzero(run.ravel())  # the (world, move) of each walker, flat
+    walkers = walkers.take(owner // K)
+    walkers.step(owner % K)
+    limit = 4 * H * W if max_steps is None else max_steps
+    open_ = np.ones(n, bool)  # worlds not decided yet
+    steps = np.where(run, limit, -1)  # costs: each try's steps to the end
+    for t in range(1, limit + 1):  # t: the steps each running try has taken
+        done = np.zeros(n * K, bool)
+        done[owner] = walkers.remaining == 0
+        done = done.reshape(n, K)
+        steps[done] = t
+        decided = done.any(1) & open_
+        if decided.any():
+            out[decided] = np.where(done[decided], priority[decided], K).argmin(1)
+            open_[decided] = False
+            run[decided] &= costs  # with costs the other tries run on
+        run &= ~done
+        if t == limit:
+            break
+        move = walkers.moves()
+        keep = run.ravel()[owner] & (move < WAIT)  # a walker with no reachable target never finishes
+        if not keep.all():
+            owner, walkers, move = owner[keep], walkers.take(np.flatnonzero(keep)), move[keep]
+        if len(owner) == 0:
+            break
+        walkers.step(move)
+    return out, steps, base
+
+
+def _path_tables_of(core: GridWorldCore, free: np.ndarray, Wp: int) -> list:
+    """_path_tables of each flat bordered map (n, P), kept between calls by map. A map over PATH_TABLE_CELLS
+    free cells, or one whose tables would pass PATH_TABLE_BYTES after dropping those the last call did not
+    use, gets None (its walkers search)."""
+    core.path_calls += 1
+    out = []
+    for m in free:
+        key = (Wp, m.tobytes())
+        entry = core.path_cache.get(key)
+        n = int(m.sum())
+        if entry is None and n <= core.PATH_TABLE_CELLS:
+            size = 4 * n * m.size
+            used = sum(e[2] for e in core.path_cache.values())
+            for old in [k for k, e in core.path_cache.items() if e[1] < core.path_calls - 1]:
+                if used + size <= core.PATH_TABLE_BYTES:
                     break
-                alive = run.ravel()[owner]
-                scratch, owner, alive = self._compacted(scratch, owner, alive)
-                scratch.frozen[:] = self.frozen[w[owner // K]] | ~alive[:, None]  # stopped tries are skipped
-                scratch.any_frozen = True
-                scratch.step(scratch.heuristic_actions(False, dead_ends_first, far_first))
-        return chosen
+                used -= core.path_cache.pop(old)[2]
+            if used + size <= core.PATH_TABLE_BYTES:
+                entry = core.path_cache[key] = [_path_tables(m, Wp), 0, size]
+        if entry is not None:
+            entry[1] = core.path_calls
+        out.append(None if entry is None else entry[0])
+    return out
 
-    # --- rendering ----------------------------------------------------------------------
-    def render_rgb(self, world: int = 0, cell: int = 16) -> np.ndarray:
-        """RGB image of one world's known map in the colours of §4.2.4."""
-        h, w = self.hw[world]
-        c = self.c
-        known = self.canvas[world, c:c + h, c:c + w] > 0
-        rgb = np.empty((h, w, 3), np.uint8)
-        rgb[:] = (40, 90, 220)  # unseen: blue
-        rgb[known[..., POI]] = (255, 255, 255)
-        rgb[known[..., COVERED]] = (220, 50, 50)
-        rgb[known[..., OBSTACLE]] = (0, 0, 0)
-        img = rgb.repeat(cell, 0).repeat(cell, 1)
-        yy, xx = np.mgrid[:cell, :cell] - (cell - 1) / 2
-        disk = yy ** 2 + xx ** 2 <= (cell * 0.38) ** 2
-        for (py, px), on in zip(self.agent_cells()[world], self.active[world]):
-            if on:
-                img[py * cell:(py + 1) * cell, px * cell:(px + 1) * cell][disk] = (20, 40, 160)
-        return img
+
+def _scratch(core: GridWorldCore, m: int) -> GridWorldCore:
+    """m empty worlds of this core's geometry (its agents, full sensor: no sensing) for the rollouts."""
+    scratch = GridWorldCore(EnvConfig(view_size=core.config.view_size, number_agents=core.N), m)
+    if (scratch.H, scratch.W) != (core.H, core.W):
+        scratch._allocate(core.H, core.W, core.N, None)
+    return scratch
+
+
+def _compacted(core: GridWorldCore, scratch: GridWorldCore, owner: np.ndarray, alive: np.ndarray):
+    """The rollouts' scratch core rebuilt without its stopped tries once they are half of it (stepping frozen
+    worlds still costs), with the owners and liveness of the kept ones."""
+    if 2 * alive.sum() > len(owner) or len(owner) <= 8:
+        return scratch, owner, alive
+    keep = np.flatnonzero(alive)
+    small = _scratch(core, len(keep))
+    small.copy_worlds(keep, np.arange(len(keep)), source=scratch)
+    return small, owner[keep], alive[keep]
+
+
+def team_rollout_actions(core: GridWorldCore, worlds=None, dead_ends_first: bool = True, max_steps: int | None = None,
+                         far_first: bool = False) -> np.ndarray:
+    """The multiagent rollout (Bertsekas 2020, "Multiagent rollout algorithms and reinforcement learning") of the
+    deterministic heuristic with claims (random_ties=False; greedy-dead-ends by default), batched: in each given
+    world (all by default; a bool mask or indices) the agents choose in index order, agent i trying each of its
+    moves with agents < i on their chosen moves and agents > i on the heuristic's; each try is finished by the
+    heuristic for the whole team and the cheapest is kept: the fewest steps until every point of interest is
+    covered (the team makespan), then the fewest agent moves, then the heuristic's own move, then N, S, W, E, WAIT
+    order. (len(worlds), N) actions from at most 4 tries an agent besides the incumbent, not 5^N joint moves (WAIT
+    is a move for several agents; a single agent never gains by waiting, so with one agent this is rollout_actions).
+    Like rollout_actions it plans on the full state (map, coverage), also in sensor tasks: a privileged teacher,
+    not a policy of the observation.
+
+    Agent i's tries are copies (copy_worlds) of their world in a scratch core, run in lockstep with one batched
+    heuristic call a step; moves into obstacles are not tried. The incumbent (agent i on the heuristic's move) is
+    the previous agent's winner, so its cost is known and only agent 0's is simulated; a try stops once it cannot
+    beat the incumbent (it needs at least steps + ceil(remaining / working agents) steps and moves + remaining
+    moves), and a world decides when its first try finishes (the others need more steps) or the incumbent's step
+    count is reached. After max_steps steps (default 4 * H * W: a heuristic that cannot finish) agent i keeps the
+    heuristic's move. Absent and frozen agents get WAIT, finished worlds the heuristic's moves. This core is not
+    changed (nor its random stream). With far_first the heuristic takes far-first ties (heuristic_actions)."""
+    w = core._world_indices(worlds)
+    n, N = len(w), core.N
+    K = 4 if N == 1 else 5  # WAIT only lets another agent by
+    if n == 0:
+        return np.zeros((0, N), np.int64)
+    c = core.c
+    inner = (slice(None), slice(c, c + core.H), slice(c, c + core.W))
+    probe = _scratch(core, n)
+    probe.copy_worlds(w, np.arange(n), source=core)
+    probe.seen[inner] = True  # the full state (outside the map is obstacle)
+    chosen = heuristic_actions(probe, False, dead_ends_first, far_first)  # agents < i: chosen; agents >= i: the heuristic's
+    working = core.active[w] & ~core.frozen[w]
+    n_work = np.maximum(working.sum(1), 1)[:, None]
+    live = core.remaining[w] > 0
+    cost = np.full((n, 2), np.inf)  # the incumbent's steps and agent moves to finish, where known
+    moves, rows = np.arange(K), np.arange(n)
+    moves0 = core.agent_moves[w][:, None]
+    limit = 4 * core.H * core.W if max_steps is None else max_steps
+    for i in range(N):  # the sequential choice: agent i knows the moves of agents < i
+        tgt = core.pos[w, i, None] + core.delta[:K]
+        legal = (~core.views["obstacle"][tgt] | (moves == WAIT)) & (live & working[:, i])[:, None]
+        known = np.isfinite(cost[:, :1])
+        incumbent = moves == chosen[:, i, None]
+        single = ~known[:, 0] & (legal.sum(1) == 1)  # nothing to compare: the only move is taken
+        chosen[single, i] = legal[single].argmax(1)
+        run = legal & ~single[:, None] & ~(incumbent & known)  # (n, K) tries still running
+        if not run.any():
+            continue
+        owner = np.flatnonzero(run.ravel())  # the (world, move) of each scratch world, flat
+        scratch = _scratch(core, len(owner))
+        scratch.copy_worlds(w[owner // K], np.arange(len(owner)), source=core)
+        scratch.seen[inner] = True
+        first = chosen[owner // K]
+        first[:, i] = owner % K
+        scratch.step(first)
+        tie = np.where(incumbent, 0, moves + 1)  # ties: the heuristic's move, then N, S, W, E, WAIT
+        for t in range(1, limit + 1):  # t: the steps each running try has taken
+            remaining, moved = np.zeros(n * K, np.int64), np.zeros(n * K, np.int64)
+            remaining[owner], moved[owner] = scratch.remaining, scratch.agent_moves
+            remaining, moved = remaining.reshape(n, K), moved.reshape(n, K) - moves0
+            done = run & (remaining == 0)
+            key = np.where(done, moved * (K + 1) + tie, np.inf)
+            best = key.argmin(1)
+            decided = done.any(1) | (cost[:, 0] <= t)
+            win = decided & (key[rows, best] < np.where(cost[:, 0] == t, cost[:, 1] * (K + 1), np.inf))
+            chosen[win, i] = best[win]
+            cost[win] = np.stack([np.full(win.sum(), t), moved[win, best[win]]], 1)
+            run[decided] = False
+            steps_lb, moves_lb = t + -(-remaining // n_work), moved + remaining
+            run &= (steps_lb < cost[:, :1]) | ((steps_lb == cost[:, :1]) & (moves_lb < cost[:, 1:]))
+            if not run.any() or t == limit:
+                break
+            alive = run.ravel()[owner]
+            scratch, owner, alive = _compacted(core, scratch, owner, alive)
+            scratch.frozen[:] = core.frozen[w[owner // K]] | ~alive[:, None]  # stopped tries are skipped
+            scratch.any_frozen = True
+            scratch.step(heuristic_actions(scratch, False, dead_ends_first, far_first))
+    return chosen
 
 
 # ----------------------------------------------------------------------------- spaces
@@ -2645,7 +2639,7 @@ class GridWorldEnv(gym.Env):
                 bool(ev["truncated"][0]), info)
 
     def heuristic_action(self) -> int:
-        return int(self.core.heuristic_actions()[0, 0])
+        return int(heuristic_actions(self.core)[0, 0])
 
     def render(self):
         return _render(self, self.core, 0)
@@ -2655,7 +2649,7 @@ class GridWorldEnv(gym.Env):
 
 
 def _render(face, core: GridWorldCore, world: int):
-    img = core.render_rgb(world)
+    img = render_rgb(core, world)
     if face.render_mode == "rgb_array":
         return img
     if face.render_mode == "human":
@@ -2740,11 +2734,11 @@ class GridWorldVectorEnv(VectorEnv):
         return self._obs(), reward, ev["terminated"], ev["truncated"], info
 
     def heuristic_actions(self) -> np.ndarray:
-        h = self.core.heuristic_actions()
+        h = heuristic_actions(self.core)
         return h[:, 0] if self.N == 1 else h
 
     def render(self):
-        return self.core.render_rgb(0) if self.render_mode == "rgb_array" else None
+        return render_rgb(self.core, 0) if self.render_mode == "rgb_array" else None
 
 
 def _stack_space(space: spaces.Space, n: int) -> spaces.Space:
@@ -2818,7 +2812,7 @@ class GridWorldParallelEnv(ParallelEnv):
         return obs, rewards, term, trunc, infos
 
     def heuristic_actions(self):
-        return self._per_agent(self.core.heuristic_actions()[0].tolist())
+        return self._per_agent(heuristic_actions(self.core)[0].tolist())
 
     def render(self):
         return _render(self, self.core, 0)
@@ -2900,7 +2894,7 @@ def map_family_benchmark(size: int = 20, seconds: float = 1.0, batch: int = 64) 
         n, t0 = 0, time.perf_counter()
         while time.perf_counter() - t0 < seconds:
             core.pool = [p[:0] for p in core.pool]
-            core._draw_maps(batch)
+            draw_maps(core, batch)
             n += len(core.pool[0])
         rows.append(dict(map_family=family, size=size, batch=batch, maps_per_s=round(n / (time.perf_counter() - t0))))
     return rows
@@ -2914,7 +2908,7 @@ def heuristic_overlap(size: int, episodes: int = 64, seed: int = 0, random_ties:
     env.reset(seed=seed)
     overlap = np.full(episodes, np.nan)
     while np.isnan(overlap).any():
-        _, _, _, _, info = env.step(env.core.heuristic_actions(random_ties)[:, 0])
+        _, _, _, _, info = env.step(heuristic_actions(env.core, random_ties)[:, 0])
         if "final_info" in info:
             first = info["_final_info"] & np.isnan(overlap)
             overlap[first] = info["final_info"]["overlap"][first]
@@ -2923,6 +2917,25 @@ def heuristic_overlap(size: int, episodes: int = 64, seed: int = 0, random_ties:
 
 
 # ----------------------------------------------------------------------------- recording
+def render_rgb(core: GridWorldCore, world: int = 0, cell: int = 16) -> np.ndarray:
+    """RGB image of one world's known map in the colours of §4.2.4."""
+    h, w = core.hw[world]
+    c = core.c
+    known = core.canvas[world, c:c + h, c:c + w] > 0
+    rgb = np.empty((h, w, 3), np.uint8)
+    rgb[:] = (40, 90, 220)  # unseen: blue
+    rgb[known[..., POI]] = (255, 255, 255)
+    rgb[known[..., COVERED]] = (220, 50, 50)
+    rgb[known[..., OBSTACLE]] = (0, 0, 0)
+    img = rgb.repeat(cell, 0).repeat(cell, 1)
+    yy, xx = np.mgrid[:cell, :cell] - (cell - 1) / 2
+    disk = yy ** 2 + xx ** 2 <= (cell * 0.38) ** 2
+    for (py, px), on in zip(core.agent_cells()[world], core.active[world]):
+        if on:
+            img[py * cell:(py + 1) * cell, px * cell:(px + 1) * cell][disk] = (20, 40, 160)
+    return img
+
+
 def _path_array(scenario: Scenario, paths) -> np.ndarray:
     """(T+1, N, 2) (row, col) cells from either that array or per-agent (T_i+1, 2) lists padded with each
     agent's last cell."""
@@ -2954,10 +2967,10 @@ def replay_frames(scenario: Scenario, paths, cell: int = 16, config: EnvConfig |
     core.configure(scenarios=[Scenario(scenario.obstacles, a[0], scenario.covered)])
     core.reset()
     actions = FIRST_STEP[np.diff(a[..., 0], axis=0) + 1, np.diff(a[..., 1], axis=0) + 1]  # (T, N)
-    frames = [core.render_rgb(0, cell)]
+    frames = [render_rgb(core, 0, cell)]
     for move in actions:
         core.step(move[None])
-        frames.append(core.render_rgb(0, cell))
+        frames.append(render_rgb(core, 0, cell))
     return frames
 
 

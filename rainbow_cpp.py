@@ -195,7 +195,7 @@ class Args:
     teacher: str = "heuristic"
     """the expert that acts under §6.4.2.4's imitation conditions (demonstrations included) and labels replayed
     states for --margin-loss: heuristic (the navigation heuristic, as set by the two flags above), rollout (the
-    one-step rollout of the deterministic heuristic, GridWorldCore.rollout_actions: about half its overlap, planned
+    one-step rollout of the deterministic heuristic, gridworld.rollout_actions: about half its overlap, planned
     on the full state also in sensor stages, a privileged teacher; milliseconds a label, see docs/rainbow_cpp.md) or
     policy-rollout (the one-step rollout of the greedy network itself with the heuristic fallback, a copy refreshed
     every --policy-refresh steps: expert iteration; tens of milliseconds a label). The evaluation's stuck fallback
@@ -654,7 +654,7 @@ def observe(core: gridworld.GridWorldCore, hint: bool = False, dead_ends_first: 
     itself could compute, so no privileged input)."""
     obs = {k: v.reshape(-1, *v.shape[2:]) for k, v in core.observe().items()}
     if hint:
-        obs["hint"] = core.heuristic_actions(False, dead_ends_first, far_first).reshape(-1)
+        obs["hint"] = gridworld.heuristic_actions(core, False, dead_ends_first, far_first).reshape(-1)
     return obs
 
 
@@ -760,7 +760,7 @@ def heuristic_baseline(config: gridworld.EnvConfig, scenarios: list, random_ties
     core.reset()
     done, steps = np.zeros(core.B, bool), np.zeros(core.B, np.int64)
     while not done.all():
-        heuristic_moves = core.heuristic_actions(random_ties, dead_ends_first, far_first)
+        heuristic_moves = gridworld.heuristic_actions(core, random_ties, dead_ends_first, far_first)
         ev = core.step(np.where(done[:, None], gridworld.WAIT, heuristic_moves))
         steps += ~done
         done |= ev["terminated"] | ev["truncated"]
@@ -1205,7 +1205,7 @@ def rollout_labels(core: gridworld.GridWorldCore, label: np.ndarray, teach: np.n
     margin loss, in every world, one batched call; returns the labels and the worlds the rollout labelled."""
     w = np.flatnonzero(teach | labelled(args))
     label = label.copy()
-    label[w] = core.rollout_actions(w, args.heuristic_dead_ends, far_first=args.heuristic_far_first)
+    label[w] = gridworld.rollout_actions(core, w, args.heuristic_dead_ends, far_first=args.heuristic_far_first)
     return label, w
 
 
@@ -1229,7 +1229,7 @@ class Fallback:
         self.owed = np.where(now_stuck, self.times_stuck, self.owed)
         fallback = (self.owed > 0) & ~done
         if fallback.any():
-            heuristic_moves = core.heuristic_actions(self.random_ties, self.dead_ends_first, self.far_first)[:, 0]
+            heuristic_moves = gridworld.heuristic_actions(core, self.random_ties, self.dead_ends_first, self.far_first)[:, 0]
             action = np.where(fallback, heuristic_moves, action)
         return action, fallback
 
@@ -1515,7 +1515,7 @@ def main(args: Args) -> None:
         label = None
         if teach.any() or labelled(args):  # the hint is this heuristic's move when ties are not random
             label = (obs["hint"] if args.hint and not args.heuristic_random_ties else
-                     core.heuristic_actions(args.heuristic_random_ties, args.heuristic_dead_ends,
+                     gridworld.heuristic_actions(core, args.heuristic_random_ties, args.heuristic_dead_ends,
                                             args.heuristic_far_first)[:, 0])
         if args.teacher != "heuristic" and label is not None:
             tick = time.perf_counter()

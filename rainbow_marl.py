@@ -190,7 +190,7 @@ class Args:
     teacher: str = "heuristic"
     """the expert that acts under §6.4.2.4's imitation conditions and labels replayed states for --margin-loss:
     heuristic (the navigation heuristic with claims, as set by the flags beside it) or rollout (the multiagent
-    rollout of greedy-dead-ends with claims, GridWorldCore.team_rollout_actions: each agent's move in index order,
+    rollout of greedy-dead-ends with claims, gridworld.team_rollout_actions: each agent's move in index order,
     the others on the heuristic; planned on the full state; ~0.1 s a world at sizes 10-30, see docs/rainbow_marl.md)"""
     heuristic_dead_ends: bool = True
     """of equally near targets the heuristic takes the one with the fewest uncovered neighbours
@@ -648,7 +648,7 @@ def observe(core: gridworld.GridWorldCore, hint: bool = False, dead_ends_first: 
     itself could compute, so no privileged input)."""
     obs = {k: v.reshape(-1, *v.shape[2:]) for k, v in core.observe().items()}
     if hint:
-        obs["hint"] = core.heuristic_actions(False, dead_ends_first, far_first).reshape(-1)
+        obs["hint"] = gridworld.heuristic_actions(core, False, dead_ends_first, far_first).reshape(-1)
     return obs
 
 
@@ -754,7 +754,7 @@ def heuristic_baseline(config: gridworld.EnvConfig, scenarios: list, random_ties
     core.reset()
     done, steps = np.zeros(core.B, bool), np.zeros(core.B, np.int64)
     while not done.all():
-        heuristic_moves = core.heuristic_actions(random_ties, dead_ends_first, far_first)
+        heuristic_moves = gridworld.heuristic_actions(core, random_ties, dead_ends_first, far_first)
         ev = core.step(np.where(done[:, None], gridworld.WAIT, heuristic_moves))
         steps += ~done
         done |= ev["terminated"] | ev["truncated"]
@@ -1203,7 +1203,7 @@ def team_rollout_labels(core: gridworld.GridWorldCore, label: np.ndarray, teach:
     labels and the worlds the rollout labelled."""
     w = np.flatnonzero(teach.any(1) | labelled(args))
     label = label.copy()
-    label[w] = core.team_rollout_actions(w, args.heuristic_dead_ends, far_first=args.heuristic_far_first)
+    label[w] = gridworld.team_rollout_actions(core, w, args.heuristic_dead_ends, far_first=args.heuristic_far_first)
     return label, w
 
 
@@ -1288,7 +1288,7 @@ def evaluate_policy(q: QNetwork, scenarios: list, frames: int, sensor: str = "fu
                 endgame = (core.remaining <= working.sum(1))[:, None]
                 fallback = ((owed > 0) | endgame) & working
                 if fallback.any():
-                    heuristic_moves = core.heuristic_actions(random_ties, dead_ends_first, far_first)
+                    heuristic_moves = gridworld.heuristic_actions(core, random_ties, dead_ends_first, far_first)
                     action = np.where(fallback, heuristic_moves, action)
                 used += fallback.sum(1)
             if action_loss:
@@ -1405,7 +1405,7 @@ def main(args: Args) -> None:
         label = None
         if teach.any() or labelled(args):  # the hint is this heuristic's move when ties are not random
             label = (obs["hint"] if args.hint and not args.heuristic_random_ties else
-                     core.heuristic_actions(args.heuristic_random_ties, args.heuristic_dead_ends,
+                     gridworld.heuristic_actions(core, args.heuristic_random_ties, args.heuristic_dead_ends,
                                             args.heuristic_far_first).ravel())
         if args.teacher == "rollout" and label is not None:
             tick = time.perf_counter()

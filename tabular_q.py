@@ -483,7 +483,7 @@ def play(core: gridworld.GridWorldCore, table: QTable, encoder: Encoder, rng: np
         use = actions == HEURISTIC
         moves = actions.copy()
         if use.any():
-            moves[use] = core.heuristic_actions()[use, 0]
+            moves[use] = gridworld.heuristic_actions(core)[use, 0]
         moves[idle] = gridworld.WAIT
         heuristic_steps += use
         ev = core.step(moves[:, None])

@@ -3,7 +3,7 @@
     python benchmarks/team_rollout.py                          # marl_eval N = 2, 5, 10 and structured_eval N = 5
     python benchmarks/team_rollout.py --agents 5 --structured-every 0   # marl_eval at N = 5 only
 
-The rollout planner with several agents (classical_cpp.team_rollout_many: GridWorldCore.team_rollout_actions at
+The rollout planner with several agents (classical_cpp.team_rollout_many: gridworld.team_rollout_actions at
 every step, Bertsekas' multiagent rollout of greedy-dead-ends with claims) beside its base, greedy-dead-ends with
 claims, and greedy with claims, on the same scenarios: every --marl-every-th marl_eval layout of sizes 10-30
 (classical_cpp.marl_eval_subset) with its first N stored starts, and every --structured-every-th structured_eval map

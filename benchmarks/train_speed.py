@@ -113,7 +113,7 @@ def filled_replay(run: rc.Args, config: gridworld.EnvConfig, worlds: int = 16, s
     every, age = np.arange(worlds), np.zeros(worlds, np.int64)
     slot = replay.add_frames(every, rc.observe(core), age, np.zeros(worlds, bool))
     for _ in range(steps):
-        action = core.heuristic_actions(False, True)[:, 0]
+        action = gridworld.heuristic_actions(core, False, True)[:, 0]
         ev = core.step(action[:, None])
         replay.set_transition(slot, np.minimum(action, rc.MOVES - 1), ev["reward"][:, 0], ev["terminated"])
         ended = ev["terminated"] | ev["truncated"]

@@ -18,15 +18,15 @@ def from_rows(rows: list[str]) -> gw.Scenario:
 
 @pytest.fixture
 def heuristic_ties(monkeypatch) -> list:
-    """The (dead_ends_first, far_first) arguments of every GridWorldCore.heuristic_actions call, in order."""
+    """The (dead_ends_first, far_first) arguments of every gridworld.heuristic_actions call, in order."""
     seen = []
-    original = gw.GridWorldCore.heuristic_actions
+    original = gw.heuristic_actions
 
-    def recording(self, random_ties=True, dead_ends_first=False, far_first=False):
+    def recording(core, random_ties=True, dead_ends_first=False, far_first=False):
         seen.append((dead_ends_first, far_first))
-        return original(self, random_ties, dead_ends_first, far_first)
+        return original(core, random_ties, dead_ends_first, far_first)
 
-    monkeypatch.setattr(gw.GridWorldCore, "heuristic_actions", recording)
+    monkeypatch.setattr(gw, "heuristic_actions", recording)
     return seen
 
 

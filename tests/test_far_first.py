@@ -1,4 +1,4 @@
-"""The far-first heuristic (GridWorldCore.heuristic_actions(far_first=True), classical_cpp's greedy-far-first).
+"""The far-first heuristic (gridworld.heuristic_actions(core, far_first=True), classical_cpp's greedy-far-first).
 
 Among the nearest points of interest it takes, with dead-ends-first, one with no target neighbour (a hole if left)
 first, then the one with the fewest (target neighbours - steps from the start); without dead-ends-first the most
@@ -70,7 +70,7 @@ def test_far_first_covers_the_reference_goal_next(family, dead_ends_first):
         got = [None] * core.B
         for _ in range(2 * H * W):  # follow the heuristic until each world covers a new cell
             before = core.covered[:, c:c + H, c:c + W].copy()
-            core.step(np.where(live, core.heuristic_actions(False, dead_ends_first, far_first=True)[:, 0], gw.WAIT)[:, None])
+            core.step(np.where(live, gw.heuristic_actions(core, False, dead_ends_first, far_first=True)[:, 0], gw.WAIT)[:, None])
             new = core.covered[:, c:c + H, c:c + W] & ~before
             for b in np.flatnonzero(new.any((1, 2)) & live):
                 got[b] = tuple(int(v) for v in np.argwhere(new[b])[0]) if got[b] is None else got[b]
@@ -97,7 +97,7 @@ def test_far_first_sweeps_away_from_the_start_by_hand():
         for a in (3, 3, 1):  # E, E, S
             core.step(np.array([[a]]))
         assert core.agent_cells()[0, 0].tolist() == [1, 2]
-        moves[dead_ends_first, far_first] = int(core.heuristic_actions(False, dead_ends_first, far_first)[0, 0])
+        moves[dead_ends_first, far_first] = int(gw.heuristic_actions(core, False, dead_ends_first, far_first)[0, 0])
     assert moves == {(False, False): 2, (False, True): 1, (True, True): 1}  # W = 2, S = 1
 
 
@@ -113,11 +113,11 @@ def test_in_a_team_far_first_sends_each_agent_away_from_its_teammate_by_hand():
         core = gw.GridWorldCore(gw.EnvConfig(load_state=True, number_agents=2, battery_factor=1e6), 1)
         core.configure(scenarios=[cc.with_starts(s)])
         core.reset()
-        moves[dead_ends_first, far_first] = core.heuristic_actions(False, dead_ends_first, far_first)[0].tolist()
+        moves[dead_ends_first, far_first] = gw.heuristic_actions(core, False, dead_ends_first, far_first)[0].tolist()
     assert moves == {(True, False): [gw.WEST, gw.WEST], (False, True): [gw.EAST, gw.WEST],
                      (True, True): [gw.EAST, gw.WEST]}
     core.frozen[0, 1] = core.any_frozen = True
-    assert core.heuristic_actions(False, True, True)[0, 0] == gw.WEST
+    assert gw.heuristic_actions(core, False, True, True)[0, 0] == gw.WEST
 
 
 def test_in_a_team_far_first_weighs_the_mean_steps_to_every_teammate_by_hand():
@@ -130,10 +130,10 @@ def test_in_a_team_far_first_weighs_the_mean_steps_to_every_teammate_by_hand():
     core = gw.GridWorldCore(gw.EnvConfig(load_state=True, number_agents=4, battery_factor=1e6), 1)
     core.configure(scenarios=[cc.with_starts(s)])
     core.reset()
-    assert core.heuristic_actions(False, False, True)[0, 0] == gw.WEST
-    assert core.heuristic_actions(False, True, True)[0, 0] == gw.WEST
+    assert gw.heuristic_actions(core, False, False, True)[0, 0] == gw.WEST
+    assert gw.heuristic_actions(core, False, True, True)[0, 0] == gw.WEST
     core.frozen[0, 2:] = core.any_frozen = True
-    assert core.heuristic_actions(False, False, True)[0, 0] == gw.EAST
+    assert gw.heuristic_actions(core, False, False, True)[0, 0] == gw.EAST
 
 
 def test_in_a_team_far_first_chases_only_targets_in_the_agents_voronoi_region_by_hand():
@@ -150,7 +150,7 @@ def test_in_a_team_far_first_chases_only_targets_in_the_agents_voronoi_region_by
         core = gw.GridWorldCore(gw.EnvConfig(load_state=True, number_agents=2, battery_factor=1e6), 1)
         core.configure(scenarios=[cc.with_starts(s)])
         core.reset()
-        moves.append(core.heuristic_actions(False, False, True)[0].tolist())
+        moves.append(gw.heuristic_actions(core, False, False, True)[0].tolist())
     assert moves == [[gw.WEST, gw.EAST], [gw.EAST, gw.EAST]]
 
 
@@ -165,8 +165,8 @@ def test_in_a_team_an_agent_with_an_empty_region_helps_the_one_with_the_most_lef
     core = gw.GridWorldCore(gw.EnvConfig(load_state=True, number_agents=3, battery_factor=1e6), 1)
     core.configure(scenarios=[cc.with_starts(s)])
     core.reset()
-    assert core.heuristic_actions(False, False, True)[0].tolist() == [gw.EAST, gw.WEST, gw.EAST]
-    assert core.heuristic_actions(False, True, True)[0, 0] == gw.EAST
+    assert gw.heuristic_actions(core, False, False, True)[0].tolist() == [gw.EAST, gw.WEST, gw.EAST]
+    assert gw.heuristic_actions(core, False, True, True)[0, 0] == gw.EAST
 
 
 @pytest.mark.parametrize("agent_0, covered_columns", [(7, [0, 1, 7, 8]), (9, [0, 1, 9, 10, 11, 12])],
@@ -187,10 +187,10 @@ def test_in_a_team_an_overloaded_agent_takes_the_far_half_of_its_region_first_by
     core = gw.GridWorldCore(gw.EnvConfig(load_state=True, number_agents=3, battery_factor=1e6), 1)
     core.configure(scenarios=[cc.with_starts(s)])
     core.reset()
-    assert core.heuristic_actions(False, False, True)[0, 0] == gw.EAST
-    assert core.heuristic_actions(False, True, True)[0, 0] == gw.EAST
+    assert gw.heuristic_actions(core, False, False, True)[0, 0] == gw.EAST
+    assert gw.heuristic_actions(core, False, True, True)[0, 0] == gw.EAST
     core.freeze([0], 2)
-    assert core.heuristic_actions(False, True, True)[0, 0] == gw.WEST
+    assert gw.heuristic_actions(core, False, True, True)[0, 0] == gw.WEST
 
 
 def test_in_a_team_the_teammate_term_is_twice_the_mean_steps_rounded_once_by_hand():
@@ -209,7 +209,7 @@ def test_in_a_team_the_teammate_term_is_twice_the_mean_steps_rounded_once_by_han
     core = gw.GridWorldCore(gw.EnvConfig(load_state=True, number_agents=4, battery_factor=1e6), 1)
     core.configure(scenarios=[cc.with_starts(s)])
     core.reset()
-    assert core.heuristic_actions(False, False, True)[0].tolist() == [gw.WAIT, gw.EAST, gw.WEST, gw.EAST]
+    assert gw.heuristic_actions(core, False, False, True)[0].tolist() == [gw.WAIT, gw.EAST, gw.WEST, gw.EAST]
 
 
 def test_greedy_far_first_planner_covers_every_map():

@@ -1,6 +1,6 @@
 """The frontier baselines of evaluate.py: the navigation heuristic on the agent's known map (`frontier`, dead-ends-first
 ties; `frontier-row-major`) and its one-step rollout planned on the known map (`frontier-rollout`,
-GridWorldCore.rollout_actions(view="known")).
+gw.rollout_actions(GridWorldCore, view="known")).
 
 By hand: a pre-covered corridor sends the agent to its nearest frontier. With the full sensor frontier is the planner
 greedy-dead-ends (row-major: greedy) and frontier-rollout the planner rollout, episode by episode; frontier-rollout is
@@ -85,7 +85,7 @@ def test_a_point_of_interest_seen_through_a_wall_does_not_stop_the_agent(tmp_pat
     assert rows[0]["completed"] and not rows[0]["truncated"]
     core = gw.GridWorldCore(gw.EnvConfig(sensor="camera", sensor_range=2), 1)  # the same world, one heuristic call
     core.reset(scenarios=[scenario])
-    assert core.heuristic_actions(False, policy != "frontier-row-major", policy == "frontier-far-first")[0, 0] == gw.EAST
+    assert gw.heuristic_actions(core, False, policy != "frontier-row-major", policy == "frontier-far-first")[0, 0] == gw.EAST
 
 
 def test_at_range_1_dead_ends_first_counts_only_known_neighbours():
@@ -197,14 +197,14 @@ def test_known_view_is_the_full_rollout_on_the_optimistic_map(sensor, sensor_ran
     core.configure(scenarios=maps)
     core.reset()
     for _ in range(8):
-        core.step(core.heuristic_actions(False, True))
+        core.step(gw.heuristic_actions(core, False, True))
     live = np.flatnonzero(core.remaining > 0)
-    known = core.rollout_actions(live, view="known")
+    known = gw.rollout_actions(core, live, view="known")
     worlds, walled_in = zip(*(optimistic(core, b) for b in live))
     full = gw.GridWorldCore(gw.EnvConfig(load_state=True, load_random=False), len(worlds))
     full.configure(scenarios=list(worlds))
     full.reset()
-    assert known.tolist() == full.rollout_actions().tolist()
+    assert known.tolist() == gw.rollout_actions(full).tolist()
     if sensor == "lidar":
         assert any(walled_in)
 
@@ -214,9 +214,9 @@ def test_known_view_with_the_full_sensor_is_the_full_view_and_bad_views_are_refu
     core = gw.GridWorldCore(gw.EnvConfig(load_state=True, load_random=False), len(maps))
     core.configure(scenarios=maps)
     core.reset()
-    assert core.rollout_actions(view="known").tolist() == core.rollout_actions().tolist()
+    assert gw.rollout_actions(core, view="known").tolist() == gw.rollout_actions(core).tolist()
     with pytest.raises(ValueError, match="view must be 'full' or 'known'"):
-        core.rollout_actions(view="seen")
+        gw.rollout_actions(core, view="seen")
 
 
 # ----------------------------------------------------------------------------- evaluate.py

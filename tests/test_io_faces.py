@@ -539,7 +539,7 @@ def test_configure_switches_stages_between_resets(tmp_path):
     core.reset()
     assert (core.hw == 6).all() and (core.H, core.W) == (6, 6)
     for _ in range(3):
-        core.step(core.heuristic_actions())
+        core.step(gridworld.heuristic_actions(core))
     cells, covered = core.agent_cells().copy(), [inner(core, core.covered, b).copy() for b in range(2)]
     steps = core.steps.copy()
 
@@ -550,7 +550,7 @@ def test_configure_switches_stages_between_resets(tmp_path):
     np.testing.assert_array_equal(core.steps, steps)
     for b in range(2):
         np.testing.assert_array_equal(inner(core, core.covered, b), covered[b])
-    core.step(core.heuristic_actions())  # still steppable
+    core.step(gridworld.heuristic_actions(core))  # still steppable
 
     core.reset()
     assert (core.hw == 10).all()

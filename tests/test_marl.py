@@ -207,9 +207,9 @@ def test_faulty_agent_stays_put_and_the_others_finish():
     core.reset()
     core.freeze([0], 2)
     where = core.agent_cells()[0, 2].copy()
-    assert core.heuristic_actions(False)[0, 2] == gw.WAIT
+    assert gw.heuristic_actions(core, False)[0, 2] == gw.WAIT
     for a in (gw.NORTH, gw.SOUTH, gw.WEST, gw.EAST):
-        core.step(np.array([[core.heuristic_actions(False)[0, 0], gw.WAIT, a]]))
+        core.step(np.array([[gw.heuristic_actions(core, False)[0, 0], gw.WAIT, a]]))
         assert (core.agent_cells()[0, 2] == where).all()
 
 
@@ -245,11 +245,11 @@ def test_the_heuristic_routes_around_a_frozen_agent():
     core = gw.GridWorldCore(gw.EnvConfig(load_state=True, load_random=False, number_agents=2), 1)
     core.configure(scenarios=[from_rows(["01..", "xxxx"])])
     core.reset()
-    assert core.heuristic_actions(False, True)[0, 0] == gw.EAST
+    assert gw.heuristic_actions(core, False, True)[0, 0] == gw.EAST
     core.freeze([0], 1)
-    assert core.heuristic_actions(False, True)[0].tolist() == [gw.SOUTH, gw.WAIT]
+    assert gw.heuristic_actions(core, False, True)[0].tolist() == [gw.SOUTH, gw.WAIT]
     for _ in range(4):
-        core.step(core.heuristic_actions(False, True))
+        core.step(gw.heuristic_actions(core, False, True))
     assert core.covered[0, core.c, core.c + 2] and core.unreachable_poi().tolist() == [0]
 
 
@@ -349,23 +349,23 @@ def test_teacher_and_fallback_use_the_dead_ends_flag(tmp_path, monkeypatch, rest
 
 # ----------------------------------------------------------------------------- --teacher rollout
 def test_team_rollout_labels_are_the_multiagent_rollout_where_needed():
-    """The worlds where the teacher acts get GridWorldCore.team_rollout_actions, the rest keep the heuristic's labels;
+    """The worlds where the teacher acts get gridworld.team_rollout_actions, the rest keep the heuristic's labels;
     with a margin loss every world gets the rollout's."""
     maps = gw.generate_scenarios(6, seed=4, size=7, number_obstacles=5, obstacles_random=True, number_agents=2)
     core = gw.GridWorldCore(gw.EnvConfig(load_state=True, load_random=False, number_agents=2), 6)
     core.configure(scenarios=maps)
     core.reset()
-    heuristic = core.heuristic_actions(False, True)
+    heuristic = gw.heuristic_actions(core, False, True)
     teach = np.zeros((6, 2), bool)
     teach[[1, 4], 0] = True
     args = rm.Args(init_from="", teacher="rollout")
     label, w = rm.team_rollout_labels(core, heuristic, teach, args)
     assert w.tolist() == [1, 4]
-    assert np.array_equal(label[w], core.team_rollout_actions(w)) and np.array_equal(label[[0, 2, 3, 5]],
+    assert np.array_equal(label[w], gw.team_rollout_actions(core, w)) and np.array_equal(label[[0, 2, 3, 5]],
                                                                                    heuristic[[0, 2, 3, 5]])
     everywhere, w = rm.team_rollout_labels(core, heuristic, teach, rm.Args(init_from="", teacher="rollout",
                                                                           margin_loss=1.0))
-    assert w.tolist() == list(range(6)) and np.array_equal(everywhere, core.team_rollout_actions())
+    assert w.tolist() == list(range(6)) and np.array_equal(everywhere, gw.team_rollout_actions(core))
 
 
 def test_rollout_teacher_run_records_its_flags(tmp_path, monkeypatch, restore_sigint, capsys):

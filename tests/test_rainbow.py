@@ -806,7 +806,7 @@ def test_margin_loss_teaches_the_heuristic_actions():
     core.reset()
     stack = rc.Stacker(8, 3, core.V)
     stack.push(rc.observe(core), np.ones(8, bool))
-    label = torch.from_numpy(core.heuristic_actions(False)[:, 0].astype(np.int64))
+    label = torch.from_numpy(gw.heuristic_actions(core, False)[:, 0].astype(np.int64))
     q = rc.QNetwork(3, V, 16, 0.0)
     optimizer = torch.optim.Adam(q.parameters(), lr=1e-3)
     maps, extras = rc.to_torch(*stack.get())

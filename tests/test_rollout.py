@@ -165,7 +165,7 @@ def test_rollout_bases_and_merging_do_not_change_the_plan():
     plain greedy base works too and is never beaten by its own rollout's absence."""
     maps = random_maps(12, seed=5)
     merged = cc.rollout_many(maps)
-    plain = cc.rollout_many(maps, base=lambda core: core.heuristic_actions(random_ties=False, dead_ends_first=True))
+    plain = cc.rollout_many(maps, base=lambda core: gw.heuristic_actions(core, random_ties=False, dead_ends_first=True))
     assert all((p[0] == q[0]).all() for p, q in zip(merged, plain))
     greedy = steps(maps, cc.plan("greedy", maps))
     on_greedy = steps(maps, cc.plan("rollout", maps, rollout_base="greedy"))

@@ -1,4 +1,4 @@
-"""Tests for the rollout teacher: GridWorldCore.rollout_actions (the one-step rollout of greedy-dead-ends, batched)
+"""Tests for the rollout teacher: gridworld.rollout_actions (the one-step rollout of greedy-dead-ends, batched)
 and rainbow_cpp's --teacher rollout.
 
 rollout_actions: beats the heuristic's first move on a hand-made map, equals classical_cpp.rollout_many's first
@@ -68,8 +68,8 @@ def test_rollout_beats_the_heuristic_by_hand():
     back (0,3) (0,2) (0,1) (0,0) (1,0) = 7 steps: the rollout goes EAST."""
     s = from_rows(["..@.", ".00."])
     core = core_of([s])
-    assert core.heuristic_actions(False, True)[0, 0] == gw.WEST
-    assert core.rollout_actions()[0] == gw.EAST
+    assert gw.heuristic_actions(core, False, True)[0, 0] == gw.WEST
+    assert gw.rollout_actions(core)[0] == gw.EAST
     assert len(cc.greedy_dead_ends(s)[0]) - 1 == 8 and len(cc.rollout(s)[0]) - 1 == 7
 
 
@@ -79,7 +79,7 @@ def heuristic_steps_after(scenario: gw.Scenario, first: int) -> int:
     core.step(np.array([[first]]))
     steps = 1
     while core.remaining[0] > 0:
-        core.step(core.heuristic_actions(False, True))
+        core.step(gw.heuristic_actions(core, False, True))
         steps += 1
     return steps
 
@@ -88,12 +88,12 @@ def test_rollout_costs_by_hand_and_by_walking_every_move():
     """The example above: WEST then the heuristic takes 8 steps, EAST 7, N and S are blocked. On random maps each
     tried move's cost is the steps of that move then the heuristic to the end, the chosen move is the cheapest, and
     asking for costs does not change the moves."""
-    out, cost = core_of([from_rows(["..@.", ".00."])]).rollout_actions(costs=True)
+    out, cost = gw.rollout_actions(core_of([from_rows(["..@.", ".00."])]), costs=True)
     assert out.tolist() == [gw.EAST] and cost.tolist() == [[-1, -1, 8, 7]]
     maps = random_maps(20, seed=3)
     core = core_of(maps)
-    out, cost = core.rollout_actions(costs=True)
-    assert out.tolist() == core.rollout_actions().tolist()
+    out, cost = gw.rollout_actions(core, costs=True)
+    assert out.tolist() == gw.rollout_actions(core).tolist()
     tried = 0
     for s, o, c in zip(maps, out, cost):
         for move in np.flatnonzero(c >= 0):
@@ -108,18 +108,18 @@ def test_rollout_actions_equal_rollout_many_first_moves():
     maps = random_maps(20)
     core = core_of(maps)
     want = [first_move(p[0]) for p in cc.rollout_many(maps)]
-    assert core.rollout_actions().tolist() == want
-    assert core.rollout_actions(np.arange(19, -1, -3)).tolist() == want[19::-3]  # any subset, in its order
+    assert gw.rollout_actions(core).tolist() == want
+    assert gw.rollout_actions(core, np.arange(19, -1, -3)).tolist() == want[19::-3]  # any subset, in its order
 
 
 def test_rollout_actions_leave_the_core_alone_and_handle_finished_worlds():
     maps = [from_rows(["@.."])] + random_maps(2, seed=1)
     core = core_of(maps)
     while core.remaining[0] > 0:  # world 0 finishes, the others walk on
-        core.step(core.heuristic_actions(False, True))
+        core.step(gw.heuristic_actions(core, False, True))
     before = {k: getattr(core, k).copy() for k in core.WORLD_ARRAYS}
     rng_state = core.rng.bit_generator.state
-    out = core.rollout_actions([0, 1, 2])
+    out = gw.rollout_actions(core, [0, 1, 2])
     assert out[0] == gw.WAIT
     live = [1, 2]
     assert (core.remaining[live] > 0).all()
@@ -127,22 +127,22 @@ def test_rollout_actions_leave_the_core_alone_and_handle_finished_worlds():
     for k, v in before.items():
         assert np.array_equal(getattr(core, k), v), k
     assert core.rng.bit_generator.state == rng_state
-    assert core.rollout_actions([]).shape == (0,)
-    assert [a.shape for a in core.rollout_actions([], costs=True)] == [(0,), (0, 4)]
+    assert gw.rollout_actions(core, []).shape == (0,)
+    assert [a.shape for a in gw.rollout_actions(core, [], costs=True)] == [(0,), (0, 4)]
 
 
 def test_rollout_actions_plan_on_the_full_state_in_sensor_tasks():
     maps = random_maps(6, seed=2)
     full, camera = core_of(maps), core_of(maps, sensor="camera", sensor_range=1)
     assert not camera.seen.all()
-    assert np.array_equal(camera.rollout_actions(), full.rollout_actions())
+    assert np.array_equal(gw.rollout_actions(camera), gw.rollout_actions(full))
 
 
 def test_rollout_actions_reject_several_agents():
     core = gw.GridWorldCore(gw.EnvConfig(number_agents=2), 1)
     core.reset()
     with pytest.raises(ValueError, match="one agent"):
-        core.rollout_actions()
+        gw.rollout_actions(core)
 
 
 # ----------------------------------------------------------------------------- rainbow_cpp --teacher
@@ -177,15 +177,15 @@ def test_heuristic_teacher_is_the_default_run(tmp_path, monkeypatch, restore_sig
 
 def test_rollout_labels_the_teachers_worlds_or_every_world_with_a_margin_loss():
     core = core_of(random_maps(8, seed=5))
-    core.step(core.heuristic_actions(False, True))
-    heuristic = core.heuristic_actions(False, True)[:, 0]
+    core.step(gw.heuristic_actions(core, False, True))
+    heuristic = gw.heuristic_actions(core, False, True)[:, 0]
     teach = np.zeros(core.B, bool)
     teach[[2, 5]] = True
     label, w = rc.rollout_labels(core, heuristic, teach, rc.Args(teacher="rollout"))
-    assert w.tolist() == [2, 5] and label[w].tolist() == core.rollout_actions(w).tolist()
+    assert w.tolist() == [2, 5] and label[w].tolist() == gw.rollout_actions(core, w).tolist()
     assert np.array_equal(np.delete(label, w), np.delete(heuristic, w))
     label, w = rc.rollout_labels(core, heuristic, teach, rc.Args(teacher="rollout", margin_loss=1.0))
-    assert w.tolist() == list(range(core.B)) and label.tolist() == core.rollout_actions().tolist()
+    assert w.tolist() == list(range(core.B)) and label.tolist() == gw.rollout_actions(core).tolist()
 
 
 @pytest.mark.parametrize("kw, msg", [(dict(teacher="oracle"), "--teacher must be one of heuristic, rollout"),
@@ -222,11 +222,11 @@ def test_policy_rollout_of_the_heuristic_is_the_rollout():
     stack.push(rc.observe(core, True), np.ones(12, bool))
     rng = np.random.default_rng(5)
     for t in range(20):  # part-walked by random moves and the heuristic's
-        act = rng.integers(0, 4, 12) if t % 2 else core.heuristic_actions(False, True)[:, 0]
+        act = rng.integers(0, 4, 12) if t % 2 else gw.heuristic_actions(core, False, True)[:, 0]
         core.step(act[:, None])
         stack.push(rc.observe(core, True), np.zeros(12, bool))
     live = np.flatnonzero(core.remaining > 0)
-    want = core.rollout_actions(live)
+    want = gw.rollout_actions(core, live)
     assert rc.policy_rollout_actions(core, live, HintCopier(), stack).tolist() == want.tolist()
     assert rc.policy_rollout_actions(core, live[::-2], HintCopier(), stack).tolist() == want[::-2].tolist()
 
@@ -255,7 +255,7 @@ def test_searching_at_test_time_walks_the_rollout_of_the_policy():
     steps = np.zeros(len(scenarios), np.int64)
     while (core.remaining > 0).any():
         steps += core.remaining > 0
-        core.step(core.rollout_actions()[:, None])
+        core.step(gw.rollout_actions(core)[:, None])
     assert searched["steps"].tolist() == steps.tolist() and searched["completed"].all()
     assert (searched["steps"] <= alone["steps"]).all() and (searched["steps"] < alone["steps"]).any()
 

@@ -1,4 +1,4 @@
-"""Tests for the rollout's mirrored and turned copies (GridWorldCore.rollout_actions(symmetries=k)).
+"""Tests for the rollout's mirrored and turned copies (gw.rollout_actions(GridWorldCore, symmetries=k)).
 
 The 8 symmetries move boards, cells and moves alike; a move's cost is its mean over the copies, each copy a world
 built from the mirrored map; the mean over all 8 does not depend on how the world is turned; bad counts are refused.
@@ -24,7 +24,7 @@ def states(seed: int, worlds: int = 6, size: int = 9) -> list[gw.Scenario]:
                                          battery_factor=1e6), worlds, seed=seed)
     core.reset()
     for _ in range(size):
-        core.step(core.heuristic_actions(random_ties=False, dead_ends_first=True, far_first=True))
+        core.step(gw.heuristic_actions(core, random_ties=False, dead_ends_first=True, far_first=True))
     c, H, W = core.c, core.H, core.W
     return [gw.Scenario(core.obstacle[b, c:c + H, c:c + W].copy(), core.agent_cells()[b], core.covered[b, c:c + H,
                                                                                                      c:c + W].copy())
@@ -52,19 +52,19 @@ def test_symmetries_move_boards_cells_and_moves_alike(k):
 
 def test_costs_are_the_mean_over_worlds_built_from_the_mirrored_maps():
     scenarios = states(seed=4)
-    action, mean = world(scenarios).rollout_actions(far_first=True, costs=True, symmetries=8)
+    action, mean = gw.rollout_actions(world(scenarios), far_first=True, costs=True, symmetries=8)
     copies = []
     for k in range(8):
-        _, cost = world([turned(s, k) for s in scenarios]).rollout_actions(far_first=True, costs=True)
+        _, cost = gw.rollout_actions(world([turned(s, k) for s in scenarios]), far_first=True, costs=True)
         copies.append(cost[:, gw._symmetric_moves(k)])
     assert np.allclose(mean, np.mean(copies, 0))
-    own = world(scenarios).heuristic_actions(random_ties=False, dead_ends_first=True, far_first=True)[:, 0]
+    own = gw.heuristic_actions(world(scenarios), random_ties=False, dead_ends_first=True, far_first=True)[:, 0]
     rows = np.arange(len(action))
     safe = (copies[0] >= 0) & (copies[0] <= copies[0][rows, own][:, None])  # no dearer than its move in the world
     decided = (mean >= 0).sum(1) >= 2
     cheapest = np.where(safe, mean, np.inf).min(1)
     assert (mean[rows, action][decided] == cheapest[decided]).all() and safe[rows, action][decided].all()
-    four = world(scenarios).rollout_actions(far_first=True, costs=True, symmetries=4)[1]
+    four = gw.rollout_actions(world(scenarios), far_first=True, costs=True, symmetries=4)[1]
     assert np.allclose(four, np.mean(copies[:4], 0))
 
 
@@ -80,8 +80,8 @@ def test_walks_by_the_mean_are_never_longer_than_the_heuristics(family):
         taken = np.zeros(core.B, np.int64)
         while (core.remaining > 0).any():
             live = core.remaining > 0
-            move = (core.rollout_actions(far_first=True, symmetries=4) if rule == "mean" else
-                    core.heuristic_actions(random_ties=False, dead_ends_first=True, far_first=True)[:, 0])
+            move = (gw.rollout_actions(core, far_first=True, symmetries=4) if rule == "mean" else
+                    gw.heuristic_actions(core, random_ties=False, dead_ends_first=True, far_first=True)[:, 0])
             core.step(np.where(live, move, gw.WAIT)[:, None])
             taken += live
             assert taken.max() <= 4 * 100
@@ -91,9 +91,9 @@ def test_walks_by_the_mean_are_never_longer_than_the_heuristics(family):
 
 def test_the_mean_over_all_eight_does_not_depend_on_the_turn():
     scenarios = states(seed=11)
-    _, mean = world(scenarios).rollout_actions(far_first=True, costs=True, symmetries=8)
+    _, mean = gw.rollout_actions(world(scenarios), far_first=True, costs=True, symmetries=8)
     for k in (1, 4, 6):
-        _, other = world([turned(s, k) for s in scenarios]).rollout_actions(far_first=True, costs=True,
+        _, other = gw.rollout_actions(world([turned(s, k) for s in scenarios]), far_first=True, costs=True,
                                                                               symmetries=8)
         assert np.allclose(other[:, gw._symmetric_moves(k)], mean)
 
@@ -102,7 +102,7 @@ def test_bad_symmetry_counts():
     core = world(states(seed=2, worlds=2))
     for bad in (0, 3, 16):
         with pytest.raises(ValueError, match="symmetries"):
-            core.rollout_actions(symmetries=bad)
+            gw.rollout_actions(core, symmetries=bad)
     oblong = world([gw.Scenario(np.zeros((2, 3), bool), np.array([[0, 0]]))])  # sits in a square world
-    action, cost = oblong.rollout_actions(costs=True, symmetries=8)
+    action, cost = gw.rollout_actions(oblong, costs=True, symmetries=8)
     assert cost[0, 0] == cost[0, 2] == -1 and action[0] in (1, 3)  # N and W leave the map

@@ -1,4 +1,4 @@
-"""Tests for the multiagent rollout: GridWorldCore.team_rollout_actions (Bertsekas 2020: agents choose in index order,
+"""Tests for the multiagent rollout: gridworld.team_rollout_actions (Bertsekas 2020: agents choose in index order,
 each try finished by greedy-dead-ends with claims) and the rollout planner with several agents (classical_cpp).
 
 team_rollout_actions: with one agent it is rollout_actions; on a corridor where the claims send both agents into the
@@ -64,14 +64,14 @@ def makespan(scenarios, paths) -> np.ndarray:
 def test_one_agent_is_rollout_actions():
     core = mid_episode(random_maps(24, 1, seed=4), steps=3, seed=1)
     core.freeze([5], 0)
-    want = core.rollout_actions()
-    got = core.team_rollout_actions()
+    want = gw.rollout_actions(core)
+    got = gw.team_rollout_actions(core)
     assert got.shape == (24, 1) and got[:, 0].tolist() == want.tolist()
     pick = np.arange(23, -1, -4)
-    assert core.team_rollout_actions(pick)[:, 0].tolist() == want[pick].tolist()  # any subset, in its order
+    assert gw.team_rollout_actions(core, pick)[:, 0].tolist() == want[pick].tolist()  # any subset, in its order
     mask = np.arange(24) % 3 == 0
-    assert core.team_rollout_actions(mask)[:, 0].tolist() == want[mask].tolist()
-    assert core.team_rollout_actions(max_steps=2)[:, 0].tolist() == core.rollout_actions(max_steps=2).tolist()
+    assert gw.team_rollout_actions(core, mask)[:, 0].tolist() == want[mask].tolist()
+    assert gw.team_rollout_actions(core, max_steps=2)[:, 0].tolist() == gw.rollout_actions(core, max_steps=2).tolist()
 
 
 # A corridor of 7 cells, agent 1 at the West end, agent 0 three cells East of it: 5 points of interest. The claims
@@ -87,9 +87,9 @@ def test_team_rollout_splits_the_corridor_the_claims_do_not():
     (base,) = cc.plan("greedy-dead-ends", [s])
     assert [p[:, 1].tolist() for p in base] == [[4, 3, 2, 3, 4, 5, 6], [0, 1, 1, 2, 3, 4, 4]]
     core = core_of([s])
-    assert core.heuristic_actions(False, True).tolist() == [[gw.WEST, gw.EAST]]
-    assert core.team_rollout_actions().tolist() == [[gw.EAST, gw.EAST]]
-    assert core.team_rollout_actions(max_steps=1).tolist() == [[gw.WEST, gw.EAST]]  # no try finishes in one step
+    assert gw.heuristic_actions(core, False, True).tolist() == [[gw.WEST, gw.EAST]]
+    assert gw.team_rollout_actions(core).tolist() == [[gw.EAST, gw.EAST]]
+    assert gw.team_rollout_actions(core, max_steps=1).tolist() == [[gw.WEST, gw.EAST]]  # no try finishes in one step
     (paths,) = cc.plan("rollout", [s])
     assert [p[:, 1].tolist() for p in paths] == [[4, 5, 6, 6], [0, 1, 2, 3]]
     b, r = cc.replay(s, base), cc.replay(s, paths)
@@ -102,7 +102,7 @@ def test_moves_are_legal_and_idle_agents_wait():
     maps[3] = gw.Scenario(maps[3].obstacles, maps[3].starts[:2], maps[3].covered)  # its agent 2 is absent
     core = mid_episode(maps, steps=2, seed=3)
     core.freeze([1, 6], 1)
-    out = core.team_rollout_actions()
+    out = gw.team_rollout_actions(core)
     assert out.shape == (10, 3) and out.min() >= 0 and out.max() <= gw.WAIT
     target = core.pos + core.delta[out]
     assert not (core.views["obstacle"][target] & (out != gw.WAIT)).any()  # never into an obstacle
@@ -110,18 +110,18 @@ def test_moves_are_legal_and_idle_agents_wait():
     finished = core_of([from_rows(["0.1"])])  # one point of interest, covered by the first step
     finished.step(np.array([[gw.EAST, gw.WAIT]]))
     assert finished.remaining[0] == 0
-    assert finished.team_rollout_actions().tolist() == finished.heuristic_actions(False, True).tolist()
+    assert gw.team_rollout_actions(finished).tolist() == gw.heuristic_actions(finished, False, True).tolist()
 
 
 def test_the_core_is_left_as_it_was():
     core = mid_episode(random_maps(6, 2, seed=9), steps=3, seed=2)
     before = {k: getattr(core, k).copy() for k in gw.GridWorldCore.WORLD_ARRAYS}
     rng_state = core.rng.bit_generator.state
-    core.team_rollout_actions([0, 2, 5])
+    gw.team_rollout_actions(core, [0, 2, 5])
     for k, v in before.items():
         assert np.array_equal(getattr(core, k), v), k
     assert core.rng.bit_generator.state == rng_state
-    assert core.team_rollout_actions([]).shape == (0, 2)
+    assert gw.team_rollout_actions(core, []).shape == (0, 2)
 
 
 # ----------------------------------------------------------------------------- the rollout planner, several agents

@@ -1,6 +1,6 @@
-"""Tests for the rollouts' lean walkers (gridworld._Walkers, _path_tables, GridWorldCore._path_tables_of).
+"""Tests for the rollouts' lean walkers (gridworld._Walkers, _path_tables, gridworld._path_tables_of).
 
-The walkers must take exactly the deterministic heuristic's moves (GridWorldCore.heuristic_actions with
+The walkers must take exactly the deterministic heuristic's moves (gridworld.heuristic_actions with
 random_ties=False, one agent, full view), by neighbour, by breadth-first search and by the shortest-path tables; a
 hand-made map checks the tables' distances and first cells; the cache keeps one table per map and respects its byte
 budget.
@@ -21,7 +21,7 @@ def mid_episode(family: str, size: int, seed: int, worlds: int = 12) -> gw.GridW
                                          random_coverage=True, battery_factor=1e6), worlds, seed=seed)
     core.reset()
     for t in range(int(rng.integers(1, size * size // 2))):
-        act = rng.integers(0, 4, worlds) if t % 3 == 0 else core.heuristic_actions(False, True)[:, 0]
+        act = rng.integers(0, 4, worlds) if t % 3 == 0 else gw.heuristic_actions(core, False, True)[:, 0]
         core.step(act[:, None])
     return core
 
@@ -42,7 +42,7 @@ def walkers_of(core: gw.GridWorldCore, dead_ends_first: bool, tables: bool, far_
 def test_walkers_move_as_the_heuristic(family, dead_ends_first, far_first):
     for seed in range(3):
         core = mid_episode(family, 16, seed)
-        want = core.heuristic_actions(False, dead_ends_first, far_first)[:, 0]
+        want = gw.heuristic_actions(core, False, dead_ends_first, far_first)[:, 0]
         unfinished = core.remaining > 0
         for tables in (False, True):
             got = walkers_of(core, dead_ends_first, tables, far_first).moves()
@@ -58,7 +58,7 @@ def test_walkers_follow_the_heuristic_to_the_end(far_first):
         live = core.remaining > 0
         if not live.any():
             break
-        move = core.heuristic_actions(False, True, far_first)[:, 0]
+        move = gw.heuristic_actions(core, False, True, far_first)[:, 0]
         assert walkers.moves()[live].tolist() == move[live].tolist()
         core.step(move[:, None])
         step = walkers.take(np.flatnonzero(live))
@@ -79,7 +79,7 @@ def test_walkers_forget_their_target_when_they_step_off_its_path(far_first):
         live = core.remaining > 0
         if not live.any():
             break
-        move = core.heuristic_actions(False, True, far_first)[:, 0]
+        move = gw.heuristic_actions(core, False, True, far_first)[:, 0]
         assert walkers.moves()[live].tolist() == move[live].tolist()
         legal = walkers.free[np.arange(len(move))[:, None], walkers.pos[:, None] + walkers.delta]
         random_move = np.array([rng.choice(np.flatnonzero(row)) for row in legal])
@@ -113,17 +113,17 @@ def test_path_tables_by_hand():
 
 def test_path_table_cache_keeps_one_table_a_map_within_its_budget(monkeypatch):
     core = mid_episode("clutter", 12, 3, worlds=4)
-    core.rollout_actions()
+    gw.rollout_actions(core)
     assert len(core.path_cache) == len({m.tobytes() for m in ~core.obstacle})
     first = {k: e[0] for k, e in core.path_cache.items()}
-    core.rollout_actions()
+    gw.rollout_actions(core)
     assert all(core.path_cache[k][0] is t for k, t in first.items())  # reused, not rebuilt
     small = gw.GridWorldCore(gw.EnvConfig(size=12), 1)
     monkeypatch.setattr(gw.GridWorldCore, "PATH_TABLE_BYTES", 1)
     small.reset()
     small.step(np.array([[gw.NORTH]]))
-    before = small.rollout_actions()
+    before = gw.rollout_actions(small)
     assert small.path_cache == {}  # over the budget: the walkers searched instead
     monkeypatch.setattr(gw.GridWorldCore, "PATH_TABLE_BYTES", 512 * 2**20)
     small.path_cache.clear()
-    assert small.rollout_actions().tolist() == before.tolist()
+    assert gw.rollout_actions(small).tolist() == before.tolist()
