@@ -13,20 +13,18 @@ Writes DIR/episodes.csv (map, size, n_free, agents, start, steps, revisits, over
 completed, truncated, heuristic_steps) and DIR/summary.json (mean, median, std, min, max of
 overlap, time-save factor and steps, completion rate; overall and by map size) and prints one line
 (mean and median overlap, time-save, completion, the heuristic's share of a learned agent's steps).
-Every metric is counted by gridworld's own environment. Policies: the planners of classical_cpp.py
-(greedy, greedy-dead-ends, greedy-far-first, rollout, boustrophedon, spiral-stc, wavefront, lkh, partition) and the
-chapter-6 agent `rainbow` (rainbow_cpp.py; --checkpoint, default models/rainbow_cpp.pt, noise off, heuristic
-fallback unless --no-heuristic; `rainbow-rollout`: the same agent searching at test time, each step the
-one-step rollout of the agent with its fallback, a full-information planner to report apart from it), the
-chapter-7 agents `marl` (rainbow_marl.py; default models/rainbow_marl.pt, decentralised: every agent acts on
-its own observation; --action-loss, --faulty-agent-at), the chapter-5 agent `tabular` (tabular_q.py; --checkpoint, default
-models/tabular_q.npz, greedy, the heuristic at dead ends unless --no-heuristic, --sensor builds
-the heuristic's map), and the exploration baselines, policies of the agent's known map under --sensor,
---sensor-range and --sensor-failure (one agent): `frontier` (the navigation heuristic: nearest known point
-of interest, else nearest frontier cell, dead-ends-first ties), `frontier-row-major` (row-major ties),
-`frontier-far-first` (far-first ties: steps from the start over the known map) and `frontier-rollout` (the
-one-step rollout of `frontier` planned on the known map, unknown cells taken as points of interest). With
---sensor full they are greedy-dead-ends, greedy, greedy-far-first and rollout.
+Every metric is counted by gridworld's own environment. Policies: the planners of classical_cpp.py (greedy,
+greedy-dead-ends, greedy-far-first, rollout, boustrophedon, spiral-stc, wavefront, lkh, partition) and the chapter-6
+agent `rainbow` (rainbow_cpp.py; --checkpoint, default models/rainbow_cpp.pt, noise off, heuristic fallback unless
+--no-heuristic), the chapter-7 agents `marl` (rainbow_marl.py; default models/rainbow_marl.pt, decentralised: every
+agent acts on its own observation; --action-loss, --faulty-agent-at), the chapter-5 agent `tabular` (tabular_q.py;
+--checkpoint, default models/tabular_q.npz, greedy, the heuristic at dead ends unless --no-heuristic, --sensor builds
+the heuristic's map), and the exploration baselines, policies of the agent's known map under --sensor, --sensor-range
+and --sensor-failure (one agent): `frontier` (the navigation heuristic: nearest known point of interest, else nearest
+frontier cell, dead-ends-first ties), `frontier-row-major` (row-major ties), `frontier-far-first` (far-first ties:
+steps from the start over the known map) and `frontier-rollout` (the one-step rollout of `frontier` planned on the
+known map, unknown cells taken as points of interest). With --sensor full they are greedy-dead-ends, greedy,
+greedy-far-first and rollout.
 
 --compare greedy,lkh runs the same episodes (same maps, same starts) with each listed policy (learned
 ones with their default model) and prints and writes DIR/compare.md and DIR/compare.json: mean overlap,
@@ -62,12 +60,12 @@ import classical_cpp
 import gridworld
 from gridworld import Scenario
 
-LEARNED = ("rainbow", "rainbow-rollout", "marl", "tabular")
+LEARNED = ("rainbow", "marl", "tabular")
 # policies of the agent's known map (the heuristic, or its one-step rollout): name -> (dead_ends_first, rollout, far_first)
 FRONTIER = {"frontier": (True, False, False), "frontier-row-major": (False, False, False),
             "frontier-far-first": (True, False, True), "frontier-rollout": (True, True, False)}
-DEFAULT_CHECKPOINT = {"rainbow": "models/rainbow_cpp.pt", "rainbow-rollout": "models/rainbow_cpp.pt",
-                      "marl": "models/rainbow_marl.pt", "tabular": "models/tabular_q.npz"}
+DEFAULT_CHECKPOINT = {"rainbow": "models/rainbow_cpp.pt", "marl": "models/rainbow_marl.pt",
+                      "tabular": "models/tabular_q.npz"}
 COLUMNS = ["map", "size", "n_free", "agents", "start", "steps", "revisits", "overlap", "time_save",
            "completed", "truncated", "heuristic_steps"]
 OPTIONAL_COLUMNS = ["walled_off"]  # marl --faulty-agent-at: the frozen agent left cells no working agent can reach
@@ -80,8 +78,7 @@ VIDEO_SECONDS = 30  # long episodes play faster than 10 steps/s so that a video 
 class Args:
     policy: str = "greedy"
     """a classical_cpp planner (greedy, greedy-dead-ends, greedy-far-first, rollout, boustrophedon, spiral-stc,
-    wavefront, lkh, partition), a learned agent (rainbow, marl, tabular; rainbow-rollout: rainbow with search at
-    test time, the one-step rollout of the agent at every step, full information only) or a policy of the known map under
+    wavefront, lkh, partition), a learned agent (rainbow, marl, tabular) or a policy of the known map under
     --sensor (frontier: the heuristic with dead-ends-first ties, the better on random maps; frontier-row-major:
     row-major ties; frontier-far-first: far-first ties, the better on structured maps; frontier-rollout: its
     one-step rollout on the known map)"""
@@ -116,9 +113,6 @@ class Args:
     """rainbow, marl: the fallback heuristic takes the nearest cell with the fewest uncovered
     neighbours first (as the shipped models were taught); --no-heuristic-dead-ends: the
     dissertation's nearest-cell heuristic"""
-    hint_bonus: float = 0.0
-    """rainbow with a hinted model: added to the Q value of its hint's move before the greedy choice (inf: the
-    hint wherever it moves); 0 is the agent itself, anything else a variant to report apart from it"""
     rollout_base: str = "greedy-dead-ends"
     """the rollout planner's base policy: greedy-dead-ends, greedy or greedy-far-first"""
     limit: int = 0
@@ -177,8 +171,8 @@ def _finite_model(q, path: str, what: str):
 
 def _check_counts(args: Args) -> None:
     """The counts and sizes scenarios_from uses, each a one-line error naming its flag."""
-    for name, value in vars(args).items():  # --hint-bonus inf is meaningful: the hint wherever it moves
-        if isinstance(value, float) and not math.isfinite(value) and not (name == "hint_bonus" and value == math.inf):
+    for name, value in vars(args).items():
+        if isinstance(value, float) and not math.isfinite(value):
             raise ValueError(f"--{name.replace('_', '-')} must be a finite number, got {value}")
     for flag, value, least in (("--agents", args.agents, 1), ("--every", args.every, 1), ("--limit", args.limit, 0),
                                ("--min-size", args.min_size, 0), ("--max-size", args.max_size, 0),
@@ -377,31 +371,24 @@ def trainer_of(args: Args, path: str, shipped: str):
     return module
 
 
-def _rainbow(args: Args, rollout: bool = False):
-    """Check the settings and load the model; returns run(episodes, paths) -> rows. With `rollout`, the agent with
-    search at test time (rainbow-rollout): each step the one-step rollout of the agent and its fallback."""
-    if rollout and args.sensor != "full":
-        raise ValueError("rainbow-rollout finishes its tries on the true map: full information only (--sensor full)")
+def _rainbow(args: Args):
+    """Check the settings and load the model; returns run(episodes, paths) -> rows."""
     if args.agents != 1:
         raise ValueError("rainbow is single-agent; use --agents 1 (marl for several)")
     if args.faulty_agent_at is not None or args.action_loss:
         raise ValueError("--faulty-agent-at and --action-loss need several agents (the marl policy)")
-    path = checkpoint_of(args, "rainbow-rollout" if rollout else "rainbow")
+    path = checkpoint_of(args, "rainbow")
     rainbow_cpp = trainer_of(args, path, "rainbow_cpp")
     kind = f"{rainbow_cpp.__name__} model"
     q = _finite_model(_load(rainbow_cpp.load_policy, path, kind), path, kind)
     frames = q.conv[0].in_channels // 4
-    if args.hint_bonus and not q.network().get("hint"):
-        raise ValueError("--hint-bonus needs a model with the hint input (rainbow_cpp.py --hint)")
 
     def run(part, i, trajectories):
         return _rows(part, rainbow_cpp.evaluate_policy(
             q, [s for _, s in part], frames, args.sensor, args.sensor_range, args.sensor_failure, args.heuristic,
-            dead_ends_first=args.heuristic_dead_ends, trajectories=trajectories, seed=args.seed + i,
-            hint_bonus=0.0 if rollout else args.hint_bonus, rollout=rollout))
+            dead_ends_first=args.heuristic_dead_ends, trajectories=trajectories, seed=args.seed + i))
 
-    name = "rainbow-rollout" if rollout else "rainbow"
-    return lambda episodes, paths=None: _sliced(episodes, 64, run, name, args.quiet, paths)
+    return lambda episodes, paths=None: _sliced(episodes, 64, run, "rainbow", args.quiet, paths)
 
 
 def run_rainbow(args: Args, episodes: list[tuple[str, Scenario]], paths: dict | None = None) -> list[dict]:
@@ -624,8 +611,7 @@ def _table_row(label: str, by_policy: dict, key: str) -> str:
 def _runner(args: Args, policy: str):
     """Check `policy`'s settings and load its model; returns run(episodes, paths=None) -> rows."""
     if policy in LEARNED:
-        return {"rainbow": _rainbow, "rainbow-rollout": partial(_rainbow, rollout=True), "marl": _marl,
-                "tabular": _tabular}[policy](args)
+        return {"rainbow": _rainbow, "marl": _marl, "tabular": _tabular}[policy](args)
     if policy in FRONTIER:
         return _frontier(args, policy)
     if policy in classical_cpp.SINGLE_AGENT and args.agents != 1:
@@ -672,12 +658,8 @@ def main(args: Args) -> dict:
             raise ValueError(f"{flag} must be >= 1, got {value}")
     if args.checkpoint and args.policy not in LEARNED:
         raise ValueError(f"--checkpoint is for the learned policies ({', '.join(LEARNED)}), not {args.policy}")
-    if args.trainer and args.policy not in ("rainbow", "rainbow-rollout", "marl"):
-        raise ValueError(f"--trainer is for the policies rainbow, rainbow-rollout and marl, not {args.policy}")
-    if args.hint_bonus and args.policy != "rainbow":
-        raise ValueError(f"--hint-bonus is for the rainbow policy, not {args.policy}")
-    if not args.hint_bonus >= 0:
-        raise ValueError(f"--hint-bonus must be >= 0 (inf: the hint), got {args.hint_bonus}")
+    if args.trainer and args.policy not in ("rainbow", "marl"):
+        raise ValueError(f"--trainer is for the policies rainbow and marl, not {args.policy}")
     for flag, folder in (("--out", args.out), ("--video", args.video)):
         if folder is not None and os.path.exists(folder) and not os.path.isdir(folder):
             raise ValueError(f"{flag} {folder}: exists and is not a folder")
@@ -702,9 +684,9 @@ def main(args: Args) -> dict:
 def _write(args: Args, episodes: list[tuple[str, Scenario]], results: dict[str, list[dict]],
            paths: dict[str, dict]) -> dict:
     rows, families = results[args.policy], dataset_families(args.dataset)
-    label = args.policy + (f" (hint bonus {args.hint_bonus:g})" if args.hint_bonus else "")  # never the agent's name
+    label = args.policy
     summary = {"policy": args.policy, "dataset": args.dataset, "maps": list(args.maps),
-               "agents": args.agents, "seed": args.seed, **({"hint_bonus": args.hint_bonus} if args.hint_bonus else {}),
+               "agents": args.agents, "seed": args.seed,
                **summarize(rows, families)}
     files = {os.path.join(args.out, "episodes.csv"): partial(_write_csv, rows=rows),
              os.path.join(args.out, "summary.json"): partial(_write_json, data=summary)}

@@ -39,12 +39,18 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import fcntl
 import functools
+import hashlib
 import json
 import math
 import numbers
 import os
+import platform
+import resource
+import shlex
 import signal
+import subprocess
 import sys
 import tempfile
 import time
@@ -498,6 +504,123 @@ def load_config(path: str) -> dict[str, EnvConfig]:
         except (ValueError, TypeError) as e:
             raise ValueError(f"{path}: {name}: {e}") from None
     return configs
+
+
+# ----------------------------------------------------------------------------- runs: provenance, locks and stops
+def provenance(script: str) -> dict:
+    """What made a run, read once at its start: the script, the git commit of this repository (dirty: tracked files
+    changed since), the machine's CPU and cores, Python and the command line."""
+    def git(*command):
+        try:
+            out = subprocess.run(["git", "-C", REPO, *command], capture_output=True, text=True, timeout=30)
+        except (OSError, subprocess.SubprocessError):
+            return None
+        return out.stdout.strip() if out.returncode == 0 else None
+
+    try:
+        with open("/proc/cpuinfo") as f:
+            cpu = next((line.split(":", 1)[1].strip() for line in f if line.startswith("model name")), None)
+    except OSError:
+        cpu = None
+    commit = git("rev-parse", "HEAD")
+    status = git("status", "--porcelain", "--untracked-files=no") if commit else None
+    return {"script": script, "git_commit": commit, "git_dirty": None if status is None else bool(status),
+            "cpu": cpu or platform.processor() or platform.machine(), "cores": os.cpu_count(),
+            "python": platform.python_version(), "command": shlex.join([os.path.basename(sys.executable), *sys.argv])}
+
+
+def lineage(path: str | None) -> dict | None:
+    """The parent of a warm start: its path and hash and, from the JSON beside it, its flags, steps, provenance and
+    own parent, so the chain reaches back to the first model trained from scratch."""
+    if not path:
+        return None
+    with open(path, "rb") as f:
+        parent = {"path": path, "sha256": hashlib.sha256(f.read()).hexdigest()}
+    beside = os.path.splitext(path)[0] + ".json"
+    if not os.path.exists(beside):
+        return parent
+    try:
+        with open(beside) as f:
+            record = json.load(f)
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise ValueError(f"{beside}: not a model record ({(str(e).splitlines() or [type(e).__name__])[0]})") from None
+    if not isinstance(record, dict):
+        raise ValueError(f"{beside}: not a model record (a {type(record).__name__}, not a mapping)")
+    return parent | {k: record[k] for k in ("global_step", "stage", "wall_seconds", "machine", "torch_threads",
+                                            "init_from_note", "provenance", "parent", "args") if k in record}
+
+
+def run_folder(run_name: str | None, exp_name: str, seed: int, resume: bool) -> str:
+    """--run-name, else CleanRL's unique f"{exp_name}__{seed}__{unix time}": one folder under runs/, whose run is
+    continued (--resume) or left alone, never overwritten."""
+    if resume and not run_name:
+        raise ValueError("--resume needs --run-name (the folder under runs/ to continue)")
+    if run_name is not None and not run_name.strip():
+        raise ValueError("--run-name must not be empty (leave it out for the default name)")
+    name = run_name or f"{exp_name}__{seed}__{int(time.time())}"
+    if name in (".", "..") or os.path.basename(name) != name or "\\" in name:
+        raise ValueError(f"--run-name must be a folder name under runs/ (no '/' or '..'), got {name!r}")
+    if not resume and os.path.exists(os.path.join("runs", name, "checkpoint.pt")):
+        raise ValueError(f"runs/{name} holds a run already: --resume continues it, or choose another --run-name")
+    return name
+
+
+def check_export(path: str, script: str) -> None:
+    """Before training: --export names a .pt file outside results/ and maps/, in a folder this process can write,
+    and never replaces a model another script made (its JSON's provenance says which)."""
+    if not path.endswith(".pt") or os.path.isdir(path):
+        raise ValueError(f"--export must name a .pt file, got {path!r}")
+    sidecar = os.path.splitext(path)[0] + ".json"
+    for file in (path, sidecar):
+        check_output(file, "model", overwrite=True, flag="--export")
+    folder = os.path.dirname(os.path.abspath(path))
+    while not os.path.exists(folder):  # the nearest folder that exists: staged_output makes the rest
+        folder = os.path.dirname(folder)
+    try:  # a file made there, since os.access lets root write anywhere (/proc too)
+        tempfile.TemporaryFile(dir=folder).close()
+    except OSError as e:
+        raise ValueError(f"--export {path}: cannot write under {folder} ({e.strerror})") from None
+    made_by = script
+    if os.path.isfile(path) and os.path.isfile(sidecar):
+        with contextlib.suppress(OSError, ValueError, KeyError, TypeError), open(sidecar) as f:
+            made_by = json.load(f)["provenance"]["script"]
+    if made_by != script:
+        raise ValueError(f"--export {path} holds a model of {made_by}: export this run elsewhere")
+
+
+def exported_by(path: str, run_name: str) -> bool:
+    """Whether the export at `path` was written by the run `run_name` (its JSON says so)."""
+    try:
+        with open(os.path.splitext(path)[0] + ".json") as f:
+            return json.load(f)["args"]["run_name"] == run_name
+    except (OSError, ValueError, KeyError, TypeError):
+        return False
+
+
+def lock_run(run_dir: str):
+    """An exclusive lock on runs/RUN/.lock for as long as the returned file stays open: a second run in the same
+    folder is a one-line error instead of two runs writing one checkpoint."""
+    os.makedirs(run_dir, exist_ok=True)
+    lock = open(os.path.join(run_dir, ".lock"), "w")
+    try:
+        fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        lock.close()
+        raise ValueError(f"{run_dir} is in use by another run; wait for it or choose another --run-name") from None
+    return lock
+
+
+def stop_signals() -> tuple[dict, dict]:
+    """Ctrl-C and SIGTERM ask a training loop to stop: it ends, saves and exits 128 + the signal's number. Returns
+    the flag the loop reads ({"signal": 0} until then) and the handlers to put back."""
+    stop = {"signal": 0}
+    previous = {s: signal.signal(s, lambda n, _: stop.update(signal=n)) for s in (signal.SIGINT, signal.SIGTERM)}
+    return stop, previous
+
+
+def peak_memory_mb() -> int:
+    """The most resident memory this process has held so far, in MiB (Linux reports KiB)."""
+    return round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)
 
 
 # ----------------------------------------------------------------------------- maps on disk
@@ -2108,7 +2231,7 @@ def heuristic_actions(core: GridWorldCore, random_ties: bool = True, dead_ends_f
     interest over known cells (a camera sees through walls). An agent left without a target waits (WAIT).
     With dead_ends_first, equally near targets with fewer target neighbours come first (Warnsdorff's rule):
     a cell that would be left behind as an isolated hole is covered now, which halves greedy's overlap
-    (README). With far_first, equally near targets farther from the agents' starting cells (steps over the
+    (RESULTS.md). With far_first, equally near targets farther from the agents' starting cells (steps over the
     known passable cells) come first, so the walk sweeps away from the start and ends near it, as the
     wavefront planner's does; in a team also those farther from the agent's working teammates (twice the mean
     Manhattan steps to them), and an agent chases only targets no working teammate is nearer to (its Voronoi
@@ -2259,7 +2382,7 @@ def _own_targets(core: GridWorldCore, passable: np.ndarray, targets: np.ndarray,
     count = np.bitwise_count(own).sum((1, 2)).reshape(core.B, core.N)
     working = core.active & ~core.frozen  # the agents with a cell on `cells`
     mean = np.where(working, count, 0).sum(1, keepdims=True) / np.maximum(working.sum(1, keepdims=True), 1)
-    # over 1.5 x the mean with three working agents or more; with two it cost more than it gained (docs/planners.md)
+    # over 1.5 x the mean with three working agents or more; with two it cost more than it gained (docs/experiments.md)
     overloaded = (working & (count > 1.5 * mean) & (working.sum(1, keepdims=True) > 2)).ravel()
     big = np.flatnonzero(overloaded)
     if len(big):  # one search for each overloaded agent only

@@ -4,42 +4,22 @@
     python rainbow_cpp.py --stage-steps-scale 0.01 --hidden 256 --num-envs 16    # a short run
     python rainbow_cpp.py --resume --run-name NAME         # continue an interrupted run
     python rainbow_cpp.py --export models/rainbow_cpp.pt   # ship the model (the only way to write models/)
-    python rainbow_cpp.py --network compact --no-cuda --threads 1     # the compact network, on one CPU thread
 
-Double DQN target, prioritized replay (sum tree), dueling streams of factorised-Gaussian noisy
-layers, n-step returns (n = 1 by default), soft target updates every learning period K, and
-the training features of §6.4.2: partial episode bootstrapping, partial resetting, the
-challenging-episode buffer, imitation of the navigation heuristic and uncommon patterns. Acting
-is batched over `num_envs` worlds of one gridworld core; the replay buffer keeps one compact
-frame per step in a segment per world and rebuilds frame stacks and next states when sampled.
-`--network fig6.8` (the default) reads the 41x41 deep observation; `--network compact` reads the multiscale
-one with grouped convolutions (a group per scale). With `--cuda` (the default, as CleanRL) the networks live
-on the GPU when there is one and every sampled batch goes there in one copy; `--no-cuda` is the CPU path.
-
-Everything a run writes goes under runs/RUN_NAME/ (default `rainbow_cpp__SEED__UNIXTIME`, as CleanRL):
-TensorBoard logs (CleanRL's tags), checkpoint.pt, the deployable weights rainbow_cpp.pt (mean weights, fp16,
-with the frames, hidden width and observation they need) and rainbow_cpp.json beside them (flags, steps,
-provenance: git commit, machine, torch, wall time, date; and the lineage of an --init-from parent), and
-with --capture-video videos/step_N.mp4 of an evaluation episode. --init-from and --resume take the
-network (kind, widths, frame stack, observation scales) from the file they load.
+Double DQN, prioritized replay, dueling noisy streams, n-step returns, soft target updates (Table 6.1) and the
+training features of §6.4.2, acting in `num_envs` worlds of one batched gridworld core. Everything a run writes
+goes under runs/RUN_NAME/ (CleanRL's TensorBoard tags): checkpoint.pt, the deployable rainbow_cpp.pt with its
+JSON (flags, steps, provenance, the parent model) and, with --capture-video, videos/step_N.mp4.
 """
 from __future__ import annotations
 
 import datetime
-import fcntl
-import hashlib
 import importlib.util
-import json
 import math
 import os
 import pickle
-import platform
 import random
-import resource
 import signal
-import subprocess
 import sys
-import tempfile
 import time
 import warnings
 import zipfile
@@ -71,10 +51,9 @@ class Args:
     seed: int = 1
     """seed of numpy, torch and the environment"""
     run_name: str | None = None
-    """folder under runs/ for everything the run writes (default: {exp_name}__{seed}__{unix time});
-    required with --resume"""
+    """folder under runs/ for everything the run writes (default: {exp_name}__{seed}__{unix time}); needed by --resume"""
     threads: int = 0
-    """torch CPU threads (0: torch's default, e.g. from OMP_NUM_THREADS); the docs' figures are for one"""
+    """torch CPU threads (0: torch's default); the docs' figures are for one"""
     cuda: bool = True
     """train and act on the GPU when there is one (as CleanRL); --no-cuda keeps everything on the CPU"""
     track: bool = False
@@ -90,8 +69,7 @@ class Args:
     capture_video: bool = False
     """at each evaluation, write runs/RUN/videos/step_N.mp4 of its first episode"""
     stages: str | None = None
-    """YAML file of named environments (Table 4.1 keys, `base_steps` each); default: Tables 6.2
-    then 6.3"""
+    """YAML file of named environments (Table 4.1 keys, `base_steps` each); default: Tables 6.2 then 6.3"""
     camera_stages: bool = True
     """with the default curriculum, continue with the camera stages of Table 6.3"""
     stage_steps_scale: float = 1.0
@@ -99,14 +77,13 @@ class Args:
     total_steps: int = 0
     """stop after this many environment steps (0: the whole schedule)"""
     time_limit: float = 0.0
-    """stop after this many minutes of training wall time, resumed time included (0: no limit); for comparisons at
-    equal CPU time"""
+    """stop after this many minutes of training wall time, resumed time included (0: no limit)"""
     num_envs: int = 16
     """worlds acted in together (one forward pass for all)"""
     buffer_size: int = 1_000_000
     """replay memory in transitions (Table 6.1)"""
     learning_rate: float = 5e-5
-    """Adam learning rate"""
+    """Adam learning rate (Table 6.1)"""
     adam_eps: float = 1.56e-4
     """Adam epsilon (0.005 / batch size)"""
     gamma: float = 0.999
@@ -116,19 +93,15 @@ class Args:
     batch_size: int = 32
     """transitions per gradient step"""
     learning_starts: int = 5000
-    """environment steps before learning (filled by the heuristic, §6.4.2.4 condition 1)"""
+    """environment steps before learning, acted by the heuristic (§6.4.2.4 condition 1)"""
     demonstration_steps: int = 0
-    """environment steps acted by the heuristic alone (§6.4.2.4 condition 1, extended past
-    learning_starts): updates before then learn from its demonstrations, as DQfD's
-    pre-training; 0: until learning_starts"""
+    """environment steps acted by the heuristic alone, past learning_starts (DQfD-like pre-training; 0: none)"""
     replay_ratio: float = 8.0
-    """sampled transitions per environment step: Table 6.1's batch 32 every K = 4 steps is 8; the
-    noise is resampled and the target soft-updated at every gradient step"""
+    """sampled transitions per environment step (Table 6.1: batch 32 every K = 4 steps)"""
     n_step: int = 1
     """multi-step return length n"""
     frame_stack: int | None = None
-    """stacked frames of map, last action and out-of-bounds (§6.3.2.7); default: the model loaded by
-    --init-from or --resume, else 3"""
+    """stacked frames (§6.3.2.7); default: the model loaded by --init-from or --resume, else 3"""
     alpha: float = 0.5
     """priority exponent"""
     beta_start: float = 0.4
@@ -138,19 +111,16 @@ class Args:
     sigma0: float = 0.5
     """noisy layers' initial standard deviation"""
     hidden: int | None = None
-    """width of the two hidden layers of each dueling stream; default: the model loaded by
-    --init-from or --resume, else 512 (Fig. 6.8), 256 for --network compact"""
+    """width of each dueling stream's hidden layers; default: the model loaded, else 512 (Fig. 6.8), 256 (compact)"""
     network: Literal["fig6.8", "compact"] | None = None
-    """fig6.8: three convolutions over the 41x41 deep observation (Fig. 6.8); compact: grouped convolutions, a
-    group per scale, over the multiscale observation (not in the dissertation); both with dueling noisy
-    streams; default: the model loaded by --init-from or --resume, else fig6.8"""
+    """fig6.8: Fig. 6.8 over the 41x41 deep observation; compact: grouped convolutions over the multiscale one (not in
+    the dissertation); default: the model loaded, else fig6.8"""
     conv_width: int | None = None
     """compact network: convolution channels per scale; default: the model loaded, else 32"""
     scales: int | None = None
     """compact network: scales of the multiscale observation; default: the model loaded, else 3"""
     scale_factor: int | None = None
-    """compact network: each scale's blocks are this many times wider than the last; default: the model
-    loaded, else 3"""
+    """compact network: each scale's blocks are this many times wider than the last; default: the model loaded, else 3"""
     scale_view: int | None = None
     """compact network: blocks across every scale's window (odd); default: the model loaded, else 11"""
     peb: bool = True
@@ -168,38 +138,21 @@ class Args:
     uncommon_max: float = 2 / 3
     """largest pre-covered fraction of an uncommon-pattern episode"""
     margin_loss: float = 0.0
-    """weight of a DQfD large-margin loss (Hester et al. 2018) pulling Q toward the heuristic's
-    action at every replayed state: the heuristic labels each state the agent visits, so the
-    imitation is on-policy (DAgger-like); 0 keeps the dissertation's recipe"""
+    """weight of DQfD's large-margin loss toward the teacher's label at every replayed state (DAgger-like; 0: off)"""
     margin: float = 0.8
-    """the margin l(a_E, a) by which the heuristic's action must beat every other action"""
+    """the margin by which the teacher's action must beat every other action"""
     td_weight: float = 1.0
-    """weight of the TD loss (0: imitation alone, the margin-only arm of the ablation in docs/rainbow_cpp.md);
-    priorities still follow the TD errors"""
+    """weight of the TD loss (0: imitation alone); priorities still follow the TD errors"""
     hint: bool = False
-    """give the network the deterministic heuristic's move (a one-hot beside the extras, computed by the agent
-    from its own observation; not in the dissertation), so copying the heuristic is trivial and capacity goes
-    to the states where its move is a mistake; a model trained with it keeps it"""
+    """give the network the deterministic heuristic's move as an input (not in the dissertation; a model keeps it)"""
     heuristic_random_ties: bool = False
-    """the heuristic breaks ties at random (§6.3.1) instead of by the first cell; the random walk
-    overlaps ~4x more (README), so it makes a poorer teacher"""
+    """the heuristic breaks ties at random (§6.3.1) instead of by the first cell"""
     heuristic_dead_ends: bool = True
-    """of equally near targets the heuristic takes the one with the fewest uncovered neighbours
-    first (Warnsdorff's rule, not in the dissertation): half greedy's overlap on cpp_eval, so a
-    better teacher and fallback; --no-heuristic-dead-ends for the dissertation's heuristic"""
+    """the heuristic takes equally near targets with the fewest uncovered neighbours first (not in the dissertation)"""
     heuristic_far_first: bool = False
-    """of equally near targets the heuristic takes those farthest from the start first (greedy-far-first in
-    classical_cpp; with dead-ends, the fewest target neighbours minus steps from the start): the walk sweeps away
-    from the start and ends near it, as the wavefront planner's does. Hint, fallback, teacher and rollout labels
-    all use it, and the export records it (far_first) so evaluation gives the network the same hint"""
+    """the heuristic takes equally near targets farthest from the start first (classical_cpp's greedy-far-first)"""
     teacher: str = "heuristic"
-    """the expert that acts under §6.4.2.4's imitation conditions (demonstrations included) and labels replayed
-    states for --margin-loss: heuristic (the navigation heuristic, as set by the two flags above), rollout (the
-    one-step rollout of the deterministic heuristic, gridworld.rollout_actions: about half its overlap, planned
-    on the full state also in sensor stages, a privileged teacher; milliseconds a label, see docs/rainbow_cpp.md) or
-    policy-rollout (the one-step rollout of the greedy network itself with the heuristic fallback, a copy refreshed
-    every --policy-refresh steps: expert iteration; tens of milliseconds a label). The evaluation's stuck fallback
-    stays the heuristic"""
+    """who acts under §6.4.2.4's conditions and labels for --margin-loss: heuristic, or rollout (its one-step rollout)"""
     eval_every: int = 25_000
     """environment steps between evaluations on held-out cpp_eval maps (0: none)"""
     eval_maps: int = 32
@@ -207,17 +160,13 @@ class Args:
     save_every: int = 25_000
     """environment steps between checkpoints (0: only at the end)"""
     curve_every: int = 0
-    """environment steps between points of the learning curve (0: none): the greedy policy with and without the
-    fallback on fixed held-out maps (every 5th cpp_eval map, every 14th structured_eval map), with the run's steps/s,
-    peak memory and steps since it was last resumed (its replay memory restarted empty then), appended to
-    runs/RUN/curve.json and kept in the checkpoint (so a resumed run goes on with it)"""
+    """environment steps between learning-curve points on fixed held-out maps, in runs/RUN/curve.json (0: none)"""
     resume: bool = False
     """continue runs/RUN/checkpoint.pt (needs --run-name; the replay memory restarts empty)"""
     init_from: str | None = None
     """start from these weights (a checkpoint or an export such as models/rainbow_cpp.pt)"""
     export: str | None = None
-    """deployable weights (and their JSON) written at each checkpoint and at the end; default:
-    runs/RUN/rainbow_cpp.pt; ship a model with an explicit --export models/rainbow_cpp.pt (--overwrite to replace one)"""
+    """deployable weights and their JSON, written at each checkpoint (default: runs/RUN/rainbow_cpp.pt)"""
     overwrite: bool = False
     """let --export replace a model (or its JSON) that was there before this run"""
 
@@ -279,7 +228,31 @@ class NoisyLinear(nn.Module):
         return F.linear(x, weight, self.bias_mu + self.bias_sigma * self.eps_out)
 
 
-class QNetwork(nn.Module):
+class Dueling(nn.Module):
+    """Fig. 6.8's head: value and advantage streams of noisy layers over the features (eq. 6.17)."""
+
+    def add_streams(self, n_in: int, hidden: int, sigma0: float) -> None:
+        for name, n_out in (("value", 1), ("advantage", MOVES)):
+            setattr(self, name, nn.ModuleList([NoisyLinear(n_in, hidden, sigma0), NoisyLinear(hidden, hidden, sigma0),
+                                               NoisyLinear(hidden, n_out, sigma0)]))
+
+    def reset_noise(self, on: bool = True):
+        for m in self.modules():
+            if isinstance(m, NoisyLinear):
+                m.reset_noise(on)
+
+    def head(self, x: torch.Tensor) -> torch.Tensor:
+        def stream(layers):
+            h = x
+            for layer in layers[:-1]:
+                h = F.relu(layer(h))
+            return layers[-1](h)
+
+        a = stream(self.advantage)
+        return stream(self.value) + a - a.mean(1, keepdim=True)
+
+
+class QNetwork(Dueling):
     """Fig. 6.8: three convolutions over the stacked maps, then dueling noisy streams."""
 
     def __init__(self, frames: int, view: int, hidden: int, sigma0: float, hint: bool = False):
@@ -292,11 +265,7 @@ class QNetwork(nn.Module):
             nn.Conv2d(64, 64, 3, 2), nn.ReLU(), nn.Flatten())
         with torch.no_grad():
             n_conv = self.conv(torch.zeros(1, CHANNELS * frames, view, view)).shape[1]
-        n_in = n_conv + 1 + frames * EXTRAS + HINTS * hint  # battery, every frame's extras, the hint
-        self.value = nn.ModuleList([NoisyLinear(n_in, hidden, sigma0), NoisyLinear(hidden, hidden, sigma0),
-                                    NoisyLinear(hidden, 1, sigma0)])
-        self.advantage = nn.ModuleList([NoisyLinear(n_in, hidden, sigma0), NoisyLinear(hidden, hidden, sigma0),
-                                        NoisyLinear(hidden, MOVES, sigma0)])
+        self.add_streams(n_conv + 1 + frames * EXTRAS + HINTS * hint, hidden, sigma0)  # battery, extras, hint
 
     def network(self) -> dict:
         """What a saved copy needs to be rebuilt and fed: network kind, frames, hidden width, view, extras,
@@ -304,16 +273,11 @@ class QNetwork(nn.Module):
         return {"network": "fig6.8", "frames": self.frames, "hidden": self.hidden, "view": self.view,
                 "extras": EXTRAS, "observation": "deep", "hint": self.hint, "far_first": self.far_first}
 
-    def reset_noise(self, on: bool = True):
-        for m in self.modules():
-            if isinstance(m, NoisyLinear):
-                m.reset_noise(on)
-
     def forward(self, maps, extras):
-        return dueling(torch.cat([self.conv(maps.float() / 255), extras], 1), self.value, self.advantage)
+        return self.head(torch.cat([self.conv(maps.float() / 255), extras], 1))
 
 
-class CompactQNetwork(nn.Module):
+class CompactQNetwork(Dueling):
     """The compact network (not in the dissertation) over the multiscale observation: per scale three 3x3
     convolutions of `conv_width` channels (the first of stride 2: 11 -> 5 -> 3 -> 1 blocks at scale_view 11),
     run as grouped convolutions (a group per scale, so scales do not mix before the streams), then Fig. 6.8's
@@ -338,11 +302,7 @@ class CompactQNetwork(nn.Module):
             layers += [nn.Conv2d(n_in, scales * conv_width, 3, stride, pad, groups=scales), nn.ReLU()]
             n_in, size = scales * conv_width, (size + 2 * pad - 3) // stride + 1
         self.conv = nn.Sequential(*layers, nn.Flatten())
-        n_in = scales * conv_width * size * size + 1 + frames * EXTRAS + HINTS * hint
-        self.value = nn.ModuleList([NoisyLinear(n_in, hidden, sigma0), NoisyLinear(hidden, hidden, sigma0),
-                                    NoisyLinear(hidden, 1, sigma0)])
-        self.advantage = nn.ModuleList([NoisyLinear(n_in, hidden, sigma0), NoisyLinear(hidden, hidden, sigma0),
-                                        NoisyLinear(hidden, MOVES, sigma0)])
+        self.add_streams(scales * conv_width * size * size + 1 + frames * EXTRAS + HINTS * hint, hidden, sigma0)
 
     def network(self) -> dict:
         """What a saved copy needs to be rebuilt and fed (QNetwork.network's keys plus the conv width and the
@@ -352,29 +312,12 @@ class CompactQNetwork(nn.Module):
                 "scale_factor": self.scale_factor, "scale_view": self.scale_view, "hint": self.hint,
                 "far_first": self.far_first}
 
-    def reset_noise(self, on: bool = True):
-        for m in self.modules():
-            if isinstance(m, NoisyLinear):
-                m.reset_noise(on)
-
     def forward(self, maps, extras):
         n, v = maps.shape[0], maps.shape[-1]
         # scale-major channels, laid out channels-last: oneDNN's grouped convolutions run ~1.7x faster on it on the CPU
         x = maps.reshape(n, self.frames, self.scales, self.per_scale, v, v).permute(0, 4, 5, 2, 1, 3)
         x = x.reshape(n, v, v, -1).permute(0, 3, 1, 2)
-        return dueling(torch.cat([self.conv(x.float() / 255), extras], 1), self.value, self.advantage)
-
-
-def dueling(x: torch.Tensor, value: nn.ModuleList, advantage: nn.ModuleList) -> torch.Tensor:
-    """Q of the four moves from the value and advantage streams over the features x (eq. 6.17)."""
-    def stream(layers):
-        h = x
-        for layer in layers[:-1]:
-            h = F.relu(layer(h))
-        return layers[-1](h)
-
-    a = stream(advantage)
-    return stream(value) + a - a.mean(1, keepdim=True)
+        return self.head(torch.cat([self.conv(x.float() / 255), extras], 1))
 
 
 def build_network(spec: dict, sigma0: float) -> nn.Module:
@@ -405,7 +348,6 @@ def frame_shape(observation: dict) -> tuple[int, int]:
 def device_of(q: nn.Module) -> torch.device:
     """Where a network's weights live (the CPU for one without any)."""
     return next(q.parameters(), torch.empty(0)).device
-
 
 
 # ----------------------------------------------------------------------------- replay memory
@@ -482,11 +424,10 @@ class Replay:
         self.filled = np.zeros(worlds, np.int64)
         self.tree = SumTree(size)
         self.max_priority = 1.0
-        self.pinned: torch.Tensor | None = None  # the host side of batch()'s one copy to a GPU
 
     @staticmethod
     def transition_bytes(view: int, channels: int | None = None, hint: bool = False) -> int:
-        """Bytes a transition takes (its frame, scalars and sum-tree leaf), known before anything is allocated."""
+        """Bytes a transition takes (frame, scalars, sum-tree leaf), known before anything is allocated."""
         frame = (CHANNELS * view * view + 7) // 8 + 4 * CHANNELS * view if channels is None else channels * view * view
         scalars = 2 * int(np.prod(OUT_OF_BOUNDS)) + 1 + 2 + 1 + 1 + 4 + 1 + 1 + 8  # oob .. age, as __init__ has them
         return frame + scalars + 16 + hint  # + the sum-tree's float64 leaf and its parent's share
@@ -579,16 +520,11 @@ class Replay:
 
     def batch(self, n: int, beta: float, rng: np.random.Generator, device: torch.device,
               labels: bool = False) -> tuple[np.ndarray, list[torch.Tensor]]:
-        """sample() as tensors on `device`: the slots, then [maps, extras, next maps, next extras, actions,
-        returns, bootstrap factors, importance weights (float32)] and with `labels` the teacher's actions
-        (int64, -1: none). One copy to a GPU per batch (hand_over);
-        on the CPU the sampled arrays themselves."""
+        """sample() as tensors on `device`: the slots, then [maps, extras, next maps, next extras, actions, returns,
+        bootstrap factors, importance weights] and with `labels` the teacher's actions (-1: none)."""
         slot, (m, e), a, ret, (nm, ne), boot, weight = self.sample(n, beta, rng)
-        arrays = [m, e, nm, ne, a, ret, boot, weight.astype(np.float32)]
-        if labels:
-            arrays.append(self.label[slot].astype(np.int64))
-        tensors, self.pinned = hand_over(arrays, device, self.pinned)
-        return slot, tensors
+        arrays = [m, e, nm, ne, a, ret, boot, weight.astype(np.float32)] + [self.label[slot].astype(np.int64)] * labels
+        return slot, [torch.from_numpy(np.ascontiguousarray(x)).to(device, non_blocking=True) for x in arrays]
 
     def update_priorities(self, slot: np.ndarray, td: np.ndarray) -> None:
         priority = np.abs(td) + 1e-6
@@ -596,31 +532,11 @@ class Replay:
         self.tree.update(slot, priority ** self.alpha)
 
 
-def hand_over(arrays: list[np.ndarray], device: torch.device, pinned: torch.Tensor | None = None,
-              pack: bool | None = None) -> tuple[list[torch.Tensor], torch.Tensor | None]:
-    """The arrays as tensors on `device`. On the CPU they are used as they are (no copy); off it (or with
-    `pack`) they are packed into one host buffer, 8-byte aligned slices, moved in one non-blocking copy and
-    split there into views. The buffer (`pinned`: page-locked for CUDA) is kept between calls and grown when
-    short; reusing it is safe because every update reads its TD errors back to the host, a sync, before the
-    next batch is packed. Returns the tensors and the buffer to pass next time."""
-    if not (device.type != "cpu" if pack is None else pack):
-        return [torch.from_numpy(np.ascontiguousarray(x)) for x in arrays], pinned
-    sizes = [-(-x.nbytes // 8) * 8 for x in arrays]
-    starts = [0, *np.cumsum(sizes).tolist()]
-    if pinned is None or pinned.numel() < starts[-1]:
-        pinned = torch.empty(starts[-1], dtype=torch.uint8, pin_memory=device.type == "cuda")
-    host = pinned.numpy()
-    for x, start in zip(arrays, starts):
-        host[start:start + x.nbytes] = np.ascontiguousarray(x).reshape(-1).view(np.uint8)
-    moved = pinned[:starts[-1]].to(device, non_blocking=True)
-    return [moved[start:start + x.nbytes].view(torch.from_numpy(x[:0].reshape(-1)).dtype).view(x.shape)
-            for x, start in zip(arrays, starts)], pinned
 
 
 # ----------------------------------------------------------------------------- acting and learning
 class Stacker:
-    """The last k frames of every stream (a world, or one agent of a world), for acting (the replay rebuilds
-    its own)."""
+    """The last k frames of every stream (a world, or one agent of a world), for acting."""
 
     def __init__(self, streams: int, k: int, view: int, channels: int = CHANNELS, hint: bool = False):
         self.maps = np.zeros((streams, k, channels, view, view), np.uint8)
@@ -649,9 +565,8 @@ class Stacker:
 
 def observe(core: gridworld.GridWorldCore, hint: bool = False, dead_ends_first: bool = True,
             far_first: bool = False) -> dict:
-    """Every agent's observation, agent-major per world: stream b * N + i is agent i of world b; with `hint`
-    also "hint", the deterministic heuristic's move of each agent (its known map, with claims: what the agent
-    itself could compute, so no privileged input)."""
+    """Every agent's observation, agent-major (stream b * N + i is agent i of world b); with `hint` also the
+    deterministic heuristic's move on the agent's known map, which the agent itself could compute."""
     obs = {k: v.reshape(-1, *v.shape[2:]) for k, v in core.observe().items()}
     if hint:
         obs["hint"] = gridworld.heuristic_actions(core, False, dead_ends_first, far_first).reshape(-1)
@@ -681,21 +596,14 @@ def large_margin_loss(q_all: torch.Tensor, label: torch.Tensor, margin: float) -
     return ((beaten - q_all.gather(1, a_e[:, None])[:, 0]) * has).sum() / has.sum().clamp(min=1e-9)
 
 
-def labelled(args: Args) -> bool:
-    """Whether replayed states need the teacher's labels: some margin loss at some step."""
-    return bool(args.margin_loss)
-
-
 def learn(q: QNetwork, target: QNetwork, optimizer: torch.optim.Optimizer, replay: Replay, args: Args,
           beta: float, rng: np.random.Generator,
           diagnose: bool = False) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None, dict | None]:
-    """One gradient step on a prioritized batch, on the networks' device (the batch handed over in one copy):
-    the double-DQN TD loss (plus --margin-loss times the margin loss), new priorities, the soft target update
-    (eq. 6.19) and fresh noise. Returns the TD loss, the mean Q(s, a) and the margin loss (None without labels),
-    detached, and with `diagnose` the update's diagnostics (None without)."""
+    """One gradient step on a prioritized batch: the double-DQN TD loss (plus --margin-loss times the margin loss),
+    new priorities, the soft target update (eq. 6.19) and fresh noise; the losses and, with `diagnose`, diagnostics."""
     device = device_of(q)
     idx, (m_, e_, nm, ne, a_, ret, boot, weight, *label) = replay.batch(args.batch_size, beta, rng, device,
-                                                                        labels=labelled(args))
+                                                                        labels=bool(args.margin_loss))
     with torch.no_grad():  # double DQN: the online net picks, the target net values
         best = q(nm, ne).argmax(1, keepdim=True)
         y = ret + boot * target(nm, ne).gather(1, best)[:, 0]
@@ -721,10 +629,8 @@ def learn(q: QNetwork, target: QNetwork, optimizer: torch.optim.Optimizer, repla
 
 def diagnostics_of(q: nn.Module, maps: torch.Tensor, extras: torch.Tensor, q_all: torch.Tensor, td_error: torch.Tensor,
                    weight: torch.Tensor, grad_norm: torch.Tensor) -> dict[str, float]:
-    """What a DQN practitioner watches, from one update's batch (logged as diagnostics/*): the spread of Q over the
-    moves (the advantage stream's range) and the gap between the two best, the mean |TD error|, the smallest
-    importance weight, the gradient norm before clipping, the mean noisy sigma, and the share of dead units (never
-    active on the batch) in the first layer of each dueling stream: a stalled learner shows here first."""
+    """What a DQN practitioner watches (diagnostics/*): Q's spread and action gap, |TD error|, the smallest importance
+    weight, the gradient norm, the noisy sigma and the dead units of each stream's first layer."""
     first = {"value": [], "advantage": []}
     hooks = [getattr(q, k)[0].register_forward_hook(lambda _, __, out, seen=seen: seen.append(out))
              for k, seen in first.items()]
@@ -769,8 +675,7 @@ def heuristic_baseline(config: gridworld.EnvConfig, scenarios: list, random_ties
 
 
 def world_paths(cells: list, steps: np.ndarray, active: np.ndarray) -> list[np.ndarray]:
-    """Per world, the (row, col) of each of its agents at every step from the start to its own end:
-    (T + 1, N, 2) int arrays, from the (B, N, 2) cells of every step."""
+    """Per world, its agents' (row, col) at every step to its own end, (T + 1, N, 2), from the cells of every step."""
     path = np.stack(cells)
     return [path[:t + 1, b][:, active[b]].astype(np.int64) for b, t in enumerate(steps)]
 
@@ -786,15 +691,14 @@ def write_episode_video(scenario: gridworld.Scenario, path: np.ndarray, video: s
 
 # ----------------------------------------------------------------------------- files
 def save_checkpoint(path: str, state: dict, kind: str = "run", flag: str = "checkpoint") -> None:
-    """torch.save through gridworld's staged write: a crash never leaves half a file, and a full disk is a one-line
-    ValueError that leaves the previous file. Only ever called on paths checked before training."""
+    """torch.save through gridworld's staged write: a crash or a full disk never leaves half a file."""
     with gridworld.staged_output(path, kind, overwrite=True, flag=flag) as tmp:
         torch.save(state, tmp)
 
 
 def export(q: QNetwork, args: Args, info: dict) -> None:
-    """Deployable weights at args.export: the noisy layers' means only, fp16, with what the network needs;
-    beside them a JSON of the flags, the network and `info` (steps, provenance, parent model)."""
+    """Deployable weights at args.export (the noisy layers' means, fp16, with the network's record) and beside them a
+    JSON of the flags, the network and `info` (steps, provenance, parent model)."""
     weights = {k: v.cpu().half() for k, v in q.state_dict().items() if "sigma" not in k and "eps" not in k}
     save_checkpoint(args.export, {"weights": weights, **q.network()}, "model", "--export")
     gridworld.write_json(os.path.splitext(args.export)[0] + ".json", {"args": asdict(args), "network": q.network(),
@@ -809,8 +713,7 @@ def reason(e: BaseException) -> str:
 
 
 def read_model(path: str) -> dict:
-    """A saved network (an export or a training checkpoint) as a dict with its weights; a missing, truncated
-    or foreign file is a one-line ValueError naming it."""
+    """A saved network (an export or a checkpoint); a missing, truncated or foreign file is a one-line ValueError."""
     if not os.path.exists(path):
         raise ValueError(f"{path}: no such checkpoint")
     try:
@@ -818,16 +721,14 @@ def read_model(path: str) -> dict:
             warnings.simplefilter("ignore")
             blob = torch.load(path, map_location="cpu", weights_only=True)
     except UNREADABLE as e:
-        raise ValueError(f"{path}: not a rainbow_cpp / rainbow_marl model "
-                         f"({reason(e)})") from None
+        raise ValueError(f"{path}: not a rainbow_cpp / rainbow_marl model ({reason(e)})") from None
     if not isinstance(blob, dict) or not isinstance(blob.get("weights", blob.get("model")), dict):
         raise ValueError(f"{path}: not a rainbow_cpp / rainbow_marl model (no weights in it)")
     return blob
 
 
 def network_of(blob: dict, path: str) -> dict:
-    """The network a saved file needs (its network() record; older files record frames and hidden only, older
-    checkpoints only their flags, and both are Fig. 6.8's), checked against the observation gridworld gives."""
+    """The network a saved file needs (its network() record, else its flags), checked against gridworld's observation."""
     flags = blob["args"] if isinstance(blob.get("args"), dict) else {}
     kind = blob.get("network", flags.get("network") or "fig6.8")
     if kind not in NETWORKS:
@@ -897,7 +798,7 @@ def load_checkpoint(path: str) -> dict:
 # ----------------------------------------------------------------------------- the run
 def check_flags(args: Args) -> None:
     """The flags both trainers share: a count or a chance out of range, a number that is not finite, more threads than
-    cores, an empty run name or an export among the reports and datasets is a one-line error."""
+    cores or an export outside models/ and runs/ is a one-line error."""
     for name, value in vars(args).items():
         if isinstance(value, float) and not math.isfinite(value):
             raise ValueError(f"--{name.replace('_', '-')} must be a finite number, got {value}")
@@ -905,8 +806,6 @@ def check_flags(args: Args) -> None:
         raise ValueError(f"--threads {args.threads}: this machine has {os.cpu_count()} cores")
     if args.track and importlib.util.find_spec("wandb") is None:
         raise ValueError("--track needs Weights & Biases: pip install wandb")
-    if args.run_name is not None and not args.run_name.strip():
-        raise ValueError("--run-name must not be empty (leave it out for the default name)")
     for name, least in (("seed", 0), ("total_steps", 0), ("num_envs", 1), ("buffer_size", 1), ("batch_size", 1),
                         ("learning_starts", 0), ("demonstration_steps", 0), ("n_step", 1), ("challenging_size", 1),
                         ("eval_every", 0), ("eval_maps", 1), ("save_every", 0), ("threads", 0)):
@@ -928,47 +827,12 @@ def check_flags(args: Args) -> None:
         if not getattr(args, name) >= 0:
             raise ValueError(f"--{name.replace('_', '-')} must be >= 0, got {getattr(args, name)}")
     if args.export:  # before training, not at the first save
-        if not args.export.endswith(".pt") or os.path.isdir(args.export):
-            raise ValueError(f"--export must name a .pt file, got {args.export!r}")
-        for path in (args.export, os.path.splitext(args.export)[0] + ".json"):
-            gridworld.check_output(path, "model", overwrite=True, flag="--export")  # results/ and maps/ hold no models
-        folder = os.path.dirname(os.path.abspath(args.export))
-        while not os.path.exists(folder):  # the folders save_checkpoint would make: the nearest existing one
-            folder = os.path.dirname(folder)
-        try:  # a file made there, since os.access lets root write anywhere (/proc too)
-            tempfile.TemporaryFile(dir=folder).close()
-        except OSError as e:
-            raise ValueError(f"--export {args.export}: cannot write under {folder} ({e.strerror})") from None
-        sidecar = os.path.splitext(args.export)[0] + ".json"
-        if os.path.isfile(args.export) and os.path.isfile(sidecar):  # the other trainer's model is never replaced
-            try:
-                with open(sidecar) as f:
-                    made_by = json.load(f)["provenance"]["script"]
-            except (OSError, ValueError, KeyError, TypeError):  # no provenance to go by: an export of ours, or none
-                made_by = f"{SCRIPT}.py"
-            if made_by != f"{SCRIPT}.py":
-                raise ValueError(f"--export {args.export} holds a model of {made_by}: export this run elsewhere")
-
-
-def run_name_of(args: Args) -> str:
-    """--run-name, else CleanRL's unique f"{exp_name}__{seed}__{unix time}"; --resume names the run it continues.
-    A name is one folder under runs/, and a run there is continued (--resume) or left alone, never overwritten."""
-    if args.resume and not args.run_name:
-        raise ValueError("--resume needs --run-name (the folder under runs/ to continue)")
-    name = args.run_name or f"{args.exp_name}__{args.seed}__{int(time.time())}"
-    if name in (".", "..") or os.path.basename(name) != name or "\\" in name:
-        raise ValueError(f"--run-name must be a folder name under runs/ (no '/' or '..'), got {name!r}")
-    if not args.resume and os.path.exists(os.path.join("runs", name, "checkpoint.pt")):
-        raise ValueError(f"runs/{name} holds a run already: --resume continues it, or choose another --run-name")
-    return name
+        gridworld.check_export(args.export, f"{SCRIPT}.py")
 
 
 def with_network(args: Args, model: dict | None, source: str | None) -> Args:
-    """--network, --hidden, --frame-stack and the compact network's --conv-width and observation scales: from
-    the model loaded (a flag that contradicts it is an error), else as given, else the defaults (Fig. 6.8 with
-    the dissertation's width and frames; the compact network's COMPACT). A scale flag for Fig. 6.8, or scales
-    gridworld refuses, is an error too. A model with a hint input keeps it; --hint adds one to a model without
-    (a warm start: start_run gives the hint's inputs zero weights; resuming such a checkpoint is an error)."""
+    """The network's flags (--network, --hidden, --frame-stack, --conv-width, the scales, --hint): from the model loaded
+    (a flag that contradicts it is an error), else as given, else DISSERTATION's or COMPACT's defaults."""
     def pick(flag, key, default=None):
         given, loaded = getattr(args, flag), None if model is None else model.get(key, default)
         if given is not None and loaded is not None and given != loaded:
@@ -991,8 +855,7 @@ def with_network(args: Args, model: dict | None, source: str | None) -> Args:
 
 
 def observed(stages: list[gridworld.EnvConfig], args: Args) -> list[gridworld.EnvConfig]:
-    """The stages observed as the run's network needs (observation_settings: the compact network's multiscale
-    observation with the run's scales); a stage that asks for another observation is an error."""
+    """The stages observed as the run's network needs; a stage that asks for another observation is an error."""
     want, out = observation_settings(asdict(args)), []
     for s in stages:
         have = {k: getattr(s, k) for k in want}
@@ -1002,51 +865,8 @@ def observed(stages: list[gridworld.EnvConfig], args: Args) -> list[gridworld.En
     return out
 
 
-def lineage(path: str | None) -> dict | None:
-    """The parent of a warm start: its path and hash, and from the JSON written beside it (when there is one)
-    its flags, steps, provenance and own parent, so the chain reaches back to the first model trained from
-    scratch."""
-    if not path:
-        return None
-    with open(path, "rb") as f:
-        parent = {"path": path, "sha256": hashlib.sha256(f.read()).hexdigest()}
-    beside = os.path.splitext(path)[0] + ".json"
-    if not os.path.exists(beside):
-        return parent
-    try:
-        with open(beside) as f:
-            record = json.load(f)
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
-        raise ValueError(f"{beside}: not a model record ({reason(e)})") from None
-    if not isinstance(record, dict):
-        raise ValueError(f"{beside}: not a model record (a {type(record).__name__}, not a mapping)")
-    return parent | {k: record[k] for k in ("global_step", "stage", "wall_seconds", "machine", "torch_threads",
-                                            "init_from_note", "provenance", "parent", "args") if k in record}
-
-
-def host() -> dict:
-    """The code and the machine of this run, read once at its start."""
-    def git(*command):
-        try:
-            out = subprocess.run(["git", "-C", HERE, *command], capture_output=True, text=True, timeout=30)
-        except (OSError, subprocess.SubprocessError):
-            return None
-        return out.stdout.strip() if out.returncode == 0 else None
-
-    try:
-        with open("/proc/cpuinfo") as f:
-            cpu = next((line.split(":", 1)[1].strip() for line in f if line.startswith("model name")), None)
-    except OSError:
-        cpu = None
-    status = git("status", "--porcelain", "--untracked-files=no")
-    return {"script": f"{SCRIPT}.py", "git_commit": git("rev-parse", "HEAD"),
-            "git_dirty": None if status is None else bool(status), "cpu": cpu or platform.processor() or platform.machine(),
-            "cores": os.cpu_count(), "torch_version": torch.__version__, "python": platform.python_version()}
-
-
 def seed_everything(seed: int, threads: int, deterministic: bool = True) -> np.random.Generator:
-    """CleanRL's seeding (random, torch; cudnn deterministic) and torch's CPU threads (0: its default); the
-    run's numpy generator."""
+    """CleanRL's seeding and torch's CPU threads (0: its default); returns the run's numpy generator."""
     random.seed(seed)
     torch.manual_seed(seed)
     torch.backends.cudnn.deterministic = deterministic
@@ -1056,15 +876,12 @@ def seed_everything(seed: int, threads: int, deterministic: bool = True) -> np.r
 
 
 def start_run(args: Args, n_stages: int) -> tuple:
-    """Seeding, the run folder, the networks (on the GPU with --cuda when there is one) and the optimizer, from
-    the checkpoint resumed or the model warm started from. The network, its widths, frame stack and
-    observation come from that file (a flag contradicting it is an error), else from the flags, else the
-    defaults (with_network). Only reads: every bad file or flag is a ValueError before anything is written.
-    Returns (args with every default filled in, run folder, online and target networks, optimizer, numpy
-    generator, (global_step, stage index, wall seconds, the learning curve so far), the parent's lineage).
-    A resumed run gets its target network back too (a checkpoint without one: a copy of the online network)."""
+    """Seeding, the run folder, the networks and the optimizer, from the checkpoint resumed or the model warm started
+    from; only reads, so every bad file or flag is a ValueError before anything is written. Returns (args with every
+    default filled in, run folder, online and target networks, optimizer, numpy generator, (global_step, stage index,
+    wall seconds, the learning curve so far), the parent's lineage)."""
     rng = seed_everything(args.seed, args.threads, args.torch_deterministic)
-    run_name = run_name_of(args)
+    run_name = gridworld.run_folder(args.run_name, args.exp_name, args.seed, args.resume)
     run_dir = os.path.join("runs", run_name)
     checkpoint = os.path.join(run_dir, "checkpoint.pt")
     state = load_checkpoint(checkpoint) if args.resume else None
@@ -1075,7 +892,7 @@ def start_run(args: Args, n_stages: int) -> tuple:
             raise ValueError(f"--hint contradicts {checkpoint} (no hint input); warm-start with --init-from instead")
     else:
         args = with_network(args, None if warm is None else network_of(warm, args.init_from), args.init_from)
-    own = args.resume and exported_by(args.export, run_name)  # a resumed run's own export is its own to rewrite
+    own = args.resume and gridworld.exported_by(args.export, run_name)  # a resumed run's own export is its own to rewrite
     for path in (args.export, os.path.splitext(args.export)[0] + ".json") if args.export else ():
         gridworld.check_output(path, "model", args.overwrite or own, "--export")
     args = replace(args, run_name=run_name, export=args.export or os.path.join(run_dir, f"{SCRIPT}.pt"))
@@ -1100,15 +917,14 @@ def start_run(args: Args, n_stages: int) -> tuple:
             rng.bit_generator.state = state["numpy_rng"]
             torch.set_rng_state(state["torch_rng"])
         except UNREADABLE as e:
-            raise ValueError(f"{checkpoint}: does not fit this run "
-                             f"({reason(e)})") from None
+            raise ValueError(f"{checkpoint}: does not fit this run ({reason(e)})") from None
         progress = (state["global_step"], state["stage"], state["wall"], list(state.get("curve", [])))
         parent, target_state = state.get("parent"), state.get("target")
     elif warm is not None:  # transfer (§7.4.2.2): the mean weights, fresh noise
         fresh = q.state_dict()
         q.load_state_dict({k: hinted(v, fresh[k]) for k, v in policy_from(warm, args.init_from).state_dict().items()}
                           | {k: v for k, v in fresh.items() if "sigma" in k or "eps" in k})
-        parent = lineage(args.init_from)
+        parent = gridworld.lineage(args.init_from)
     try:
         target.load_state_dict(target_state or q.state_dict())
     except UNREADABLE as e:
@@ -1116,18 +932,8 @@ def start_run(args: Args, n_stages: int) -> tuple:
     return args, run_dir, q, target, optimizer, rng, progress, parent
 
 
-def exported_by(path: str, run_name: str) -> bool:
-    """Whether the export at `path` was written by the run `run_name` (its JSON says so)."""
-    try:
-        with open(os.path.splitext(path)[0] + ".json") as f:
-            return json.load(f)["args"]["run_name"] == run_name
-    except (OSError, ValueError, KeyError, TypeError):
-        return False
-
-
 def hinted(weight: torch.Tensor, fresh: torch.Tensor) -> torch.Tensor:
-    """A warm start's weight for a network that adds the hint's inputs: the first stream layers get zero weights
-    on them (the policy starts as the parent's, then learns what the hint is worth); other weights as they are."""
+    """A warm start's weight where the network adds the hint's inputs: zero weights on them, so it starts as the parent."""
     if weight.shape == fresh.shape or weight.dim() != 2 or fresh.shape[1] != weight.shape[1] + HINTS:
         return weight
     return torch.cat([weight, torch.zeros(weight.shape[0], HINTS, dtype=weight.dtype)], 1)
@@ -1136,10 +942,8 @@ def hinted(weight: torch.Tensor, fresh: torch.Tensor) -> torch.Tensor:
 def save_run(run_dir: str, q: QNetwork, target: QNetwork, optimizer: torch.optim.Optimizer, args: Args,
              rng: np.random.Generator, global_step: int, stage_index: int, stage_name: str, wall: float,
              parent: dict | None, machine: dict, curve: list | None = None) -> None:
-    """The checkpoint (runs/RUN/checkpoint.pt: the whole training state but the replay memory, with the learning
-    curve so far) and the export with its JSON: flags, network, steps, the provenance of this code and machine,
-    and the parent model's lineage. Weights that are not finite (a diverged run) are a ValueError and nothing is
-    written, so the last checkpoint and export stay."""
+    """The checkpoint (the training state but the replay memory, with the curve so far) and the export with its JSON;
+    weights that are not finite (a diverged run) are a ValueError and the last checkpoint and export stay."""
     if not all(torch.isfinite(v).all() for v in q.state_dict().values()):
         raise ValueError(f"the network's weights are not finite at step {global_step:,} (training diverged); "
                          f"{run_dir} keeps its last checkpoint and export")
@@ -1156,33 +960,6 @@ def save_run(run_dir: str, q: QNetwork, target: QNetwork, optimizer: torch.optim
                        "wall_seconds": round(wall, 1),
                        "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")},
         "parent": parent})
-
-
-def lock_run(run_dir: str):
-    """An exclusive lock on runs/RUN/.lock for as long as the returned file stays open (until the process ends):
-    a second run in the same folder is a one-line error instead of two runs writing one checkpoint."""
-    os.makedirs(run_dir, exist_ok=True)
-    lock = open(os.path.join(run_dir, ".lock"), "w")
-    try:
-        fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except OSError:
-        lock.close()
-        raise ValueError(f"{run_dir} is in use by another run; wait for it or choose another --run-name") from None
-    return lock
-
-
-def stop_signals() -> tuple[dict, dict]:
-    """Ctrl-C (SIGINT) and SIGTERM (`timeout`, a scheduler, a machine going away) ask the run to stop: the loop
-    ends, the run saves its checkpoint and exits 128 + the signal's number. Returns the flag the loop reads
-    ({"signal": 0} until then) and the handlers to put back."""
-    stop = {"signal": 0}
-    previous = {s: signal.signal(s, lambda n, _: stop.update(signal=n)) for s in (signal.SIGINT, signal.SIGTERM)}
-    return stop, previous
-
-
-def peak_memory_mb() -> int:
-    """The most resident memory this process has held so far, in MiB (Linux reports KiB)."""
-    return round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)
 
 
 def progress_bar(total: int, initial: int, quiet: bool) -> tqdm:
@@ -1203,115 +980,11 @@ def rollout_labels(core: gridworld.GridWorldCore, label: np.ndarray, teach: np.n
                    args: Args) -> tuple[np.ndarray, np.ndarray]:
     """--teacher rollout: the heuristic's labels with the rollout's in the worlds the teacher acts in and, with a
     margin loss, in every world, one batched call; returns the labels and the worlds the rollout labelled."""
-    w = np.flatnonzero(teach | labelled(args))
+    w = np.flatnonzero(teach | bool(args.margin_loss))
     label = label.copy()
     label[w] = gridworld.rollout_actions(core, w, args.heuristic_dead_ends, far_first=args.heuristic_far_first)
     return label, w
 
-
-class Fallback:
-    """§6.5.2.1's heuristic fallback for single-agent worlds: once an agent is stuck (§6.4.2.4's conditions 3-4) the
-    deterministic heuristic keeps control for as many new cells as the agent has been stuck in its episode."""
-
-    def __init__(self, core: gridworld.GridWorldCore, random_ties: bool = False, dead_ends_first: bool = True,
-                 far_first: bool = False):
-        n = core.B
-        self.since_new, self.times_stuck = np.zeros(n, np.int64), np.zeros(n, np.int64)
-        self.owed = np.zeros(n, np.int64)  # new cells left to the heuristic
-        self.history = [core.agent_cells()[:, 0]] * 6  # cells at t-5 .. t
-        self.random_ties, self.dead_ends_first, self.far_first = random_ties, dead_ends_first, far_first
-
-    def act(self, core: gridworld.GridWorldCore, action: np.ndarray, done: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The actions with the heuristic's where it has control, and where it has."""
-        moved = np.abs(core.agent_cells()[:, 0] - self.history[0]).sum(1)
-        now_stuck = stuck(self.since_new, moved, core.hw.max(1)) & ~done & (self.owed == 0)
-        self.times_stuck += now_stuck
-        self.owed = np.where(now_stuck, self.times_stuck, self.owed)
-        fallback = (self.owed > 0) & ~done
-        if fallback.any():
-            heuristic_moves = gridworld.heuristic_actions(core, self.random_ties, self.dead_ends_first, self.far_first)[:, 0]
-            action = np.where(fallback, heuristic_moves, action)
-        return action, fallback
-
-    def stepped(self, core: gridworld.GridWorldCore, new: np.ndarray) -> None:
-        """After a step: whether each agent found a new cell."""
-        self.since_new = np.where(new, 0, self.since_new + 1)
-        self.owed = np.maximum(self.owed - new, 0)
-        self.history = self.history[1:] + [core.agent_cells()[:, 0]]
-
-    def take(self, rows: np.ndarray) -> None:
-        """Keep the worlds `rows` only (the core was rebuilt with them)."""
-        self.since_new, self.times_stuck, self.owed = self.since_new[rows], self.times_stuck[rows], self.owed[rows]
-        self.history = [h[rows] for h in self.history]
-
-
-def policy_rollout_actions(core: gridworld.GridWorldCore, worlds: np.ndarray, policy: nn.Module, stack: Stacker,
-                           dead_ends_first: bool = True, far_first: bool = False) -> np.ndarray:
-    """The one-step rollout (Bertsekas) whose base is the greedy `policy` (noise off) with the
-    heuristic fallback, for the given worlds (indices): each legal move is tried in a copy of the world (copy_worlds),
-    the copies go on with the policy in lockstep from the world's frame stack, and the move whose copy covers every
-    point of interest first wins (the policy's own move on ties, then N, S, W, E). Its labels are never worse than the
-    policy with its fallback (cost improvement), so labelling the agent's states with them is a policy-improvement
-    step. A copy not done within 4 h w steps loses; where none is done the policy's move stands. The copies act on
-    their own observations (sensors included); the simulator finishes them on the true map."""
-    n, K, device = len(worlds), 4, device_of(policy)
-    if n == 0:
-        return np.zeros(0, np.int64)
-    maps, extras = stack.get()
-    with torch.no_grad():
-        base = policy(*to_torch(maps[worlds], extras[worlds], device)).argmax(1).cpu().numpy()
-    out = base.copy()
-    moves = np.arange(K)
-    live = core.remaining[worlds] > 0
-    run = ~core.views["obstacle"][core.pos[worlds, 0][:, None] + core.delta[:K]] & live[:, None]
-    single = run.sum(1) == 1
-    out[single] = run[single].argmax(1)
-    run[single] = False
-    priority = np.where(moves == base[:, None], -1, moves)  # ties: the policy's move, then N, S, W, E
-    owner = np.flatnonzero(run.ravel())  # the (world, move) of each copy, flat
-    if len(owner) == 0:
-        return out
-    config = core.config.replace(size=max(core.H, core.W))
-    copies = gridworld.GridWorldCore(config, len(owner), seed=0)
-    copies.copy_worlds(worlds[owner // K], np.arange(len(owner)), source=core)
-    sub = Stacker(len(owner), stack.maps.shape[1], stack.maps.shape[-1], stack.maps.shape[2], stack.hint is not None)
-    sub.maps, sub.extra, sub.battery = (a[worlds[owner // K]].copy() for a in (stack.maps, stack.extra, stack.battery))
-    fallback = Fallback(copies, False, dead_ends_first, far_first)
-    ev = copies.step((owner % K)[:, None])
-    fallback.stepped(copies, ev["new"][:, 0])
-    hint = stack.hint is not None
-    sub.push(observe(copies, hint, dead_ends_first, far_first), np.zeros(len(owner), bool))
-    limit = 4 * core.H * core.W
-    for _ in range(limit):
-        done = np.zeros(n * K, bool)
-        done[owner] = copies.remaining == 0
-        done = done.reshape(n, K)
-        decided = done.any(1)
-        if decided.any():
-            out[decided] = np.where(done[decided], priority[decided], K).argmin(1)
-            run[decided] = False
-        keep = run.ravel()[owner] & ~(copies.remaining == 0)
-        if not keep.any():
-            break
-        if 2 * keep.sum() <= len(owner):  # rebuild the copies without the stopped ones
-            rows = np.flatnonzero(keep)
-            smaller = gridworld.GridWorldCore(config, len(rows), seed=0)
-            smaller.copy_worlds(rows, np.arange(len(rows)), source=copies)
-            copies, owner, keep = smaller, owner[rows], keep[rows]
-            sub.maps, sub.extra, sub.battery = sub.maps[rows], sub.extra[rows], sub.battery[rows]
-            sub.hint = None if sub.hint is None else sub.hint[rows]
-            fallback.take(rows)
-        maps, extras = sub.get()
-        with torch.no_grad():
-            action = policy(*to_torch(maps, extras, device)).argmax(1).cpu().numpy()
-        action, _ = fallback.act(copies, action, ~keep)
-        ev = copies.step(np.where(keep, action, gridworld.WAIT)[:, None])
-        fallback.stepped(copies, ev["new"][:, 0])
-        sub.push(observe(copies, hint, dead_ends_first, far_first), np.zeros(len(owner), bool))
-    return out
-
-
-# ----------------------------------------------------------------------------- single-agent helpers
 
 def load_stages(args: Args) -> list[gridworld.EnvConfig]:
     if not 0.0 <= args.uncommon_patterns <= 1.0 or not 0.0 <= args.uncommon_max < 1.0:
@@ -1332,8 +1005,7 @@ def load_stages(args: Args) -> list[gridworld.EnvConfig]:
 
 
 def stage_config(stage: gridworld.EnvConfig, args: Args) -> gridworld.EnvConfig:
-    """The stage's settings plus the uncommon-pattern episodes of §6.4.2.5 and a 2-h*w battery
-    top-up for partial resets (gridworld.GridWorldCore.recharge)."""
+    """The stage's settings plus the uncommon-pattern episodes of §6.4.2.5."""
     if stage.random_coverage and args.uncommon_patterns > 0:
         return stage.replace(random_coverage_prob=args.uncommon_patterns, random_coverage_max=args.uncommon_max)
     return stage
@@ -1350,9 +1022,8 @@ def curve_maps() -> dict[str, list[gridworld.Scenario]]:
 
 
 def curve_point(q: QNetwork, maps: dict[str, list[gridworld.Scenario]], args: Args) -> dict:
-    """The greedy policy on each set of curve_maps, with the fallback (`name`) and without it (`name`_alone): mean
-    overlap, completion, the dissertation's outliers (overlap > 0.5 or truncated, §6.5.2) and, with the fallback, its
-    share of the steps; for cpp_eval also the mean overlap by size. The fallback breaks ties deterministically."""
+    """The greedy policy on each set of curve_maps with the fallback (`name`) and without it (`name`_alone): overlap,
+    completion, §6.5.2's outliers (overlap > 0.5 or truncated), the fallback's share; on cpp_eval by size too."""
     point = {}
     for name, scenarios in maps.items():
         for fallback in (True, False):
@@ -1373,22 +1044,10 @@ def curve_point(q: QNetwork, maps: dict[str, list[gridworld.Scenario]], args: Ar
 
 def evaluate_policy(q: QNetwork, scenarios: list, frames: int, sensor: str = "full", sensor_range: int = 3,
                     sensor_failure: float = 0.0, heuristic: bool = True, random_ties: bool = False,
-                    dead_ends_first: bool = True, trajectories: list | None = None, seed: int = 0,
-                    hint_bonus: float = 0.0, rollout: bool = False) -> dict:
-    """Run the deterministic policy (noise off) once on each scenario, all at once; with
-    `heuristic` the navigation heuristic takes over when the agent is stuck (§6.5.2.1, the
-    conditions of §6.4.2.4) and keeps control for as many new cells as the agent has been stuck
-    in this episode, so a policy that keeps falling into loops still finishes the map.
-    Returns per-episode arrays: gridworld's metrics, `truncated` and `heuristic_steps`. A list
-    given as `trajectories` is extended with one (T + 1, 1, 2) int array per scenario: the agent's
-    (row, col) at every step from the start, T that episode's own steps. The observation and the frame
-    count are the network's own (q.network(), on its device); `frames` counts only for a network without
-    that record. The hint and the fallback take far-first ties where the network was trained so (its far_first).
-    `seed` draws the sensor failures, so a run is repeatable. `hint_bonus` (a hinted network) is added to the Q value
-    of the hint's move before the greedy choice: 0 is the agent itself, inf its hint wherever the hint moves, and
-    between them the agent leaves its hint only where it prefers another move by more than the bonus. `rollout`
-    searches at test time: every step takes the one-step rollout of this policy with its fallback
-    (policy_rollout_actions; its copies finish on the true map, so it is a full-information planner)."""
+                    dead_ends_first: bool = True, trajectories: list | None = None, seed: int = 0) -> dict:
+    """The deterministic policy (noise off) once on each scenario, all at once, with the heuristic fallback of §6.5.2.1
+    unless `heuristic` is False; per-episode arrays: gridworld's metrics, `truncated` and `heuristic_steps`.
+    `trajectories`, a list, gets each episode's (T + 1, 1, 2) cells; `seed` draws the sensor failures."""
     spec = q.network() if hasattr(q, "network") else {"frames": frames}
     observation, frames, device = observation_settings(spec), spec["frames"], device_of(q)
     core = gridworld.GridWorldCore(eval_config(scenarios, sensor, sensor_range, sensor_failure, observation),
@@ -1398,31 +1057,33 @@ def evaluate_policy(q: QNetwork, scenarios: list, frames: int, sensor: str = "fu
     n, hint, far_first = len(scenarios), bool(spec.get("hint")), bool(spec.get("far_first"))
     stack = Stacker(n, frames, *frame_shape(observation)[::-1], hint=hint)
     stack.push(observe(core, hint, dead_ends_first, far_first), np.ones(n, bool))
-    done, truncated, used = np.zeros(n, bool), np.zeros(n, bool), np.zeros(n, np.int64)
-    steps = np.zeros(n, np.int64)  # each world's own, not counting the waits after its end
-    fallback = Fallback(core, random_ties, dead_ends_first, far_first)
+    done, truncated = np.zeros(n, bool), np.zeros(n, bool)
+    since_new, times_stuck, owed = (np.zeros(n, np.int64) for _ in range(3))  # owed: new cells left to the heuristic
+    steps, used = np.zeros(n, np.int64), np.zeros(n, np.int64)  # each world's own, not the waits after its end
+    history = [core.agent_cells()[:, 0]] * 6  # cells at t-5 .. t
     cells = [core.agent_cells()]
     q.reset_noise(False)
     with torch.no_grad():
         while not done.all():
             active = np.flatnonzero(~done)  # finished worlds cost no forward pass
             action = np.full(n, gridworld.WAIT)
-            if rollout:
-                action[active] = policy_rollout_actions(core, active, q, stack, dead_ends_first, far_first)
-            else:
-                maps, extras = stack.get()
-                values = q(*to_torch(maps[active], extras[active], device)).float().cpu().numpy()
-                if hint_bonus:
-                    proposed = stack.hint[active]
-                    moving = np.flatnonzero(proposed < MOVES)
-                    values[moving, proposed[moving]] += hint_bonus  # with inf the hint's value is inf: argmax takes it
-                action[active] = values.argmax(1)
-            if heuristic:
-                action, helped = fallback.act(core, action, done)
-                used += helped
+            maps, extras = stack.get()
+            action[active] = q(*to_torch(maps[active], extras[active], device)).float().cpu().numpy().argmax(1)
+            if heuristic:  # §6.5.2.1: a stuck agent hands over for as many new cells as it has been stuck
+                moved = np.abs(core.agent_cells()[:, 0] - history[0]).sum(1)
+                now_stuck = stuck(since_new, moved, core.hw.max(1)) & ~done & (owed == 0)
+                times_stuck += now_stuck
+                owed = np.where(now_stuck, times_stuck, owed)
+                fallback = (owed > 0) & ~done
+                if fallback.any():
+                    heuristic_moves = gridworld.heuristic_actions(core, random_ties, dead_ends_first, far_first)[:, 0]
+                    action = np.where(fallback, heuristic_moves, action)
+                used += fallback
             ev = core.step(np.where(done, gridworld.WAIT, action)[:, None])
             steps += ~done
-            fallback.stepped(core, ev["new"][:, 0])
+            since_new = np.where(ev["new"][:, 0], 0, since_new + 1)
+            owed = np.maximum(owed - ev["new"][:, 0], 0)
+            history = history[1:] + [core.agent_cells()[:, 0]]
             if trajectories is not None:
                 cells.append(core.agent_cells())
             truncated |= ev["truncated"] & ~done
@@ -1453,7 +1114,7 @@ def main(args: Args) -> None:
     stages, device = observed(stages, args), device_of(q)  # the stages observed as the network needs
     observation = observation_settings(asdict(args))
     channels, view = frame_shape(observation)
-    machine = host()
+    machine = gridworld.provenance(f"{SCRIPT}.py") | {"torch_version": torch.__version__}
     ends = np.cumsum([max(1, int(s.base_steps * args.stage_steps_scale)) for s in stages])
     total = int(min(ends[-1], args.total_steps or ends[-1]))
 
@@ -1464,7 +1125,7 @@ def main(args: Args) -> None:
                     None if observation["observation"] == "deep" else channels, args.hint)
     print(f"{run_dir}: {args.network} network on {device}, replay {replay.bytes_per_transition()} bytes per transition, "
           f"{replay.bytes_per_transition() * args.buffer_size / 2**30:.2f} GiB for {args.buffer_size:,}")
-    lock = lock_run(run_dir)  # held until this run ends
+    lock = gridworld.lock_run(run_dir)  # held until this run ends
     if args.track:  # CleanRL's way: W&B mirrors the TensorBoard events
         import wandb
         wandb.init(project=args.wandb_project_name, entity=args.wandb_entity, sync_tensorboard=True,
@@ -1493,10 +1154,8 @@ def main(args: Args) -> None:
     updates_due, last_log, last_loss_log, t0 = 0.0, global_step, global_step, time.time() - wall
     replay_born = global_step  # a new (or resumed) memory refills for learning_starts steps before learning
     curve_clock = (global_step, time.time())  # steps/s between curve points leaves out their evaluation
-    n_labels, label_time = 0, 0.0  # --teacher rollout: its labels and the seconds they took
-    departures = np.zeros(3, np.int64)  # of the rollout's labels: departures from the heuristic, the network's agreeing
     latest = ""
-    stop, previous_handlers = stop_signals()
+    stop, previous_handlers = gridworld.stop_signals()
     bar = progress_bar(total, global_step, args.quiet)
 
     def save():
@@ -1513,16 +1172,12 @@ def main(args: Args) -> None:
         moved = np.abs(core.agent_cells()[:, 0] - history[0]).sum(1)
         teach = (teacher | continued | stuck(since_new, moved, core.hw.max(1))) & (rng.random(B) < args.imitation)
         label = None
-        if teach.any() or labelled(args):  # the hint is this heuristic's move when ties are not random
+        if teach.any() or args.margin_loss:  # the hint is this heuristic's move when ties are not random
             label = (obs["hint"] if args.hint and not args.heuristic_random_ties else
                      gridworld.heuristic_actions(core, args.heuristic_random_ties, args.heuristic_dead_ends,
                                             args.heuristic_far_first)[:, 0])
         if args.teacher != "heuristic" and label is not None:
-            tick = time.perf_counter()
-            heuristic_label, (label, w) = label, rollout_labels(core, label, teach, args)
-            n_labels, label_time = n_labels + len(w), label_time + time.perf_counter() - tick
-            off = w[label[w] != heuristic_label[w]]
-            departures += len(w), len(off), int((action[off] == label[off]).sum())
+            label, _ = rollout_labels(core, label, teach, args)
         if teach.any():  # a heuristic without a target (WAIT) leaves the agent its own move
             action = np.where(teach & (label < gridworld.WAIT), label, action)
 
@@ -1530,7 +1185,7 @@ def main(args: Args) -> None:
         ev = core.step(action[:, None])
         terminated, truncated = ev["terminated"], ev["truncated"]
         replay.set_transition(slot, action, ev["reward"][:, 0], terminated | (truncated & ~args.peb),
-                              label if labelled(args) else None)
+                              label if args.margin_loss else None)
         returns += ev["reward"][:, 0]
         since_new = np.where(ev["new"][:, 0], 0, since_new + 1)
         history = history[1:] + [core.agent_cells()[:, 0]]
@@ -1597,13 +1252,9 @@ def main(args: Args) -> None:
         if global_step - last_log >= 1000:
             sps = int(global_step / max(time.time() - t0, 1e-9))
             writer.add_scalar("charts/SPS", sps, global_step)
-            rate = ""
-            if args.teacher != "heuristic" and label_time > 0:
-                writer.add_scalar("charts/labels_per_s", n_labels / label_time, global_step)
-                rate = f", labels/s {n_labels / label_time:.0f}"
-            bar.set_postfix_str(f"{stages[stage_index].name}, SPS {sps}{rate}{latest}", refresh=False)
+            bar.set_postfix_str(f"{stages[stage_index].name}, SPS {sps}{latest}", refresh=False)
             if bar.disable and not args.quiet:
-                print(f"step {global_step:,}/{total:,} stage {stages[stage_index].name} SPS {sps}{rate}", flush=True)
+                print(f"step {global_step:,}/{total:,} stage {stages[stage_index].name} SPS {sps}", flush=True)
             last_log = global_step
         if args.eval_every and global_step % args.eval_every < B:
             stage = stages[stage_index]
@@ -1623,16 +1274,9 @@ def main(args: Args) -> None:
             for k, v in result.items():
                 writer.add_scalar(f"eval/{k}", v, global_step)
             latest = f", eval overlap {result['overlap']:.3f}"
-            agreed = ""
-            if departures[1]:  # since the last evaluation: the acting network's (noisy) move where the rollout departs
-                writer.add_scalar("charts/departure_share", departures[1] / departures[0], global_step)
-                writer.add_scalar("charts/departure_agreement", departures[2] / departures[1], global_step)
-                agreed = (f"; rollout departed from the heuristic at {departures[1] / departures[0]:.2%} of "
-                          f"{departures[0]:,} labels, the network agreed at {departures[2] / departures[1]:.0%}")
-                departures[:] = 0
             bar.write(f"step {global_step:,}  eval overlap {result['overlap']:.3f} (heuristic "
                       f"{result['heuristic_overlap']:.3f} on the same maps), completed {100 * result['completion']:.0f}%, "
-                      f"heuristic share {result['heuristic_share']:.2f}{agreed}")
+                      f"heuristic share {result['heuristic_share']:.2f}")
             if paths:
                 write_episode_video(pool[0], paths[0], os.path.join(run_dir, "videos", f"step_{global_step}.mp4"),
                                     stage.sensor, stage.sensor_range)
@@ -1641,7 +1285,7 @@ def main(args: Args) -> None:
             point = {"step": global_step, "stage": stages[stage_index].name, "wall_seconds": round(tick - t0),
                      "sps": round((global_step - curve_clock[0]) / max(tick - curve_clock[1], 1e-9)),
                      "steps_since_resume": global_step - replay_born,  # the replay memory restarted then
-                     "peak_rss_mb": peak_memory_mb()}
+                     "peak_rss_mb": gridworld.peak_memory_mb()}
             point |= curve_point(q, held_out, args)
             curve.append(point | {"eval_seconds": round(time.time() - tick)})
             gridworld.write_json(os.path.join(run_dir, "curve.json"), {"args": asdict(args), "curve": curve}, "run",
@@ -1669,9 +1313,6 @@ def main(args: Args) -> None:
     print(f"saved {os.path.join(run_dir, 'checkpoint.pt')} and {args.export} at step {global_step:,}")
     if stop["signal"]:  # interrupted: the shell's convention, 130 for Ctrl-C and 143 for SIGTERM
         raise SystemExit(128 + stop["signal"])
-    if args.teacher != "heuristic":
-        print(f"{args.teacher} teacher: {n_labels:,} labels in {label_time:.1f} s, {n_labels / max(label_time, 1e-9):.0f} "
-              "labels/s")
 
 
 if __name__ == "__main__":

@@ -1087,6 +1087,75 @@ def headline(results: dict) -> list[str]:
     return lines
 
 
+def _lineage_steps(m: dict) -> tuple[int, int]:
+    """Environment steps over a model's whole warm-start chain (its JSON's `parent` records), and the runs counted."""
+    steps, runs, link = m["global_step"], 1, m.get("parent")
+    while isinstance(link, dict) and isinstance(link.get("global_step"), int):
+        steps, runs, link = steps + link["global_step"], runs + 1, link.get("parent")
+    return steps, runs
+
+
+def _trained(m: dict, model: str) -> str:
+    wall = _wall(m)
+    steps, runs = _lineage_steps(m)
+    threads = _provenance(m).get("torch_threads", m.get("torch_threads"))
+    kind = (m.get("network") or {}).get("network", "fig6.8") if isinstance(m.get("network"), dict) else "fig6.8"
+    return (f"`{model}` ({kind} network, hidden {m['args']['hidden']}): its last run took {m['global_step']:,} "
+            f"environment steps in {recorded(None if wall is None else wall / 60, '{:.0f} min')} on "
+            f"{recorded(threads)} torch thread{'' if threads == 1 else 's'}; {steps:,} steps over the {runs} runs of "
+            "its warm-start chain.")
+
+
+def rainbow_cpp_summary(results: dict) -> list[str]:
+    """docs/rainbow_cpp.md's results block: the shipped model against `REFERENCE`'s targets on cpp_eval, and what
+    its training cost (from its JSON). A pure function of results/, checked equal to the page by tests/test_docs.py."""
+    rb = results["rainbow_cpp"]
+    if rb is None:
+        return [NOT_COLLECTED.format(file=PARTS["rainbow_cpp"], part="rainbow_cpp", model=MODELS["rainbow_cpp"],
+                                     script=SCRIPTS["rainbow_cpp"])]
+    first, last = REFERENCE["rainbow_cpp_sizes"]
+    goal = REFERENCE["rainbow_cpp_overlap"]
+    sizes = [z for z in sorted(rb["full"], key=int) if first <= int(z) <= last]
+    full = rb["full"]
+    worst = max(sizes, key=lambda z: full[z]["overlap"])
+    met = sum(full[z]["overlap"] <= goal for z in sizes)
+    below = sum(full[z]["overlap"] < rb["greedy"][z]["overlap"] for z in sizes)
+    bound = "".join(f"; no walk meets it at {z}x{z}, whose lower bound is {rb['lower_bound'][z]:.3f}"
+                    for z in sizes if "lower_bound" in rb and rb["lower_bound"][z] > goal)
+    rows = [[f"completion with the fallback, every size {first}-{last}",
+             f"{100 * REFERENCE['rainbow_cpp_completion']:.0f}%",
+             f"{_share(min(full[z]['completion'] for z in sizes))} at worst"],
+            [f"mean overlap at every size {first}-{last}", f"≤ {goal}",
+             f"met at {met} of {len(sizes)} sizes (worst {full[worst]['overlap']:.3f} at {worst}{bound})"],
+            [f"below the greedy planner at every size {first}-{last}", "every size", f"{below} of {len(sizes)} sizes"],
+            ["mean overlap, all sizes 5-30", "—", f"{np.mean([v['overlap'] for v in full.values()]):.3f} "
+             f"(its teacher greedy-far-first {np.mean([v['overlap'] for v in rb['greedy_far_first'].values()]):.3f}, "
+             f"greedy {np.mean([v['overlap'] for v in rb['greedy'].values()]):.3f})"]]
+    return [table([f"`cpp_eval`, the first {rb['per_size']} maps a size", "target (`report.REFERENCE`)",
+                   "shipped model"], rows), "", "Training: " + _trained(rb["model"], MODELS["rainbow_cpp"])]
+
+
+def rainbow_marl_summary(results: dict) -> list[str]:
+    """docs/rainbow_marl.md's results block: the shipped team model against `REFERENCE`'s targets on marl_eval, and
+    what its training cost (from its JSON). A pure function of results/, checked equal to the page by tests."""
+    mr = results["rainbow_marl"]
+    if mr is None:
+        return [NOT_COLLECTED.format(file=PARTS["rainbow_marl"], part="rainbow_marl", model=MODELS["rainbow_marl"],
+                                     script=SCRIPTS["rainbow_marl"])]
+    agents = mr["agents"]
+    rows = [[f"mean t_sf, N = {n}", f"≤ {t}", f"{agents[n]['time_save']:.3f} (its teacher greedy-far-first with claims "
+             f"{agents[n]['greedy_far_first']:.3f}, greedy with claims {agents[n]['greedy']:.3f})"]
+            for n, t in REFERENCE["rainbow_marl_time_save"].items() if n in agents]
+    several = [n for n in sorted(agents, key=int) if int(n) > 1]
+    below = sum(agents[n]["time_save"] < agents[n]["greedy"] for n in several)
+    rows += [["completion, every N", "100%", f"{_share(min(a['completion'] for a in agents.values()))} at worst"],
+             ["below greedy with claims", "every N", f"{below} of the {len(several)} agent counts "
+              f"{several[0]}-{several[-1]}"]]
+    return [table([f"`marl_eval` sizes {_sizes(agents[several[0]]['by_size'])}, every {_ordinal(mr['every'])} layout",
+                   "target (`report.REFERENCE`)", "shipped model"], rows), "",
+            "Training: " + _trained(mr["model"], MODELS["rainbow_marl"])]
+
+
 def learning_rate_lines(sweep: dict | None) -> list[str]:
     """benchmarks/learning_rate.py's sweep: per rate, the greedy evaluation (with the fallback) at each evaluation
     beside the heuristic on the same maps, and the last logged mean Q."""

@@ -1,9 +1,9 @@
 """The learning rate of the dissertation's recipe (issue 43): Table 6.2's stages 1-2 from scratch at several rates.
 
     taskset -c 1 python benchmarks/learning_rate.py --out runs/learning_rate.json       # ~10 min a rate, one core
-    taskset -c 1 python benchmarks/learning_rate.py --network fig6.8 --rates 5e-5 5e-4 --total-steps 40000 \
-        --eval-every 10000 --out results/learning_rate_fig68.json                      # Fig. 6.8, stage fi1
-    python report.py ... reads nothing from here; the docs quote the JSON this writes
+    taskset -c 1 python benchmarks/learning_rate.py --network fig6.8 --rates 5e-5 5e-4 --total-steps 24000 \
+        --eval-every 8000 --out results/learning_rate_fig68.json                       # Fig. 6.8, stage fi1
+    python report.py render                                  # RESULTS.md's learning-rate tables read these JSONs
 
 Each rate trains rainbow_cpp.py with the scale run's flags (the compact network on one thread, the dissertation's
 random-tie heuristic as teacher and fallback, every §6.4.2 feature, no margin loss) over stages fi1 and fi2 of Table

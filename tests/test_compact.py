@@ -7,7 +7,6 @@
   its frames as they are (uint8, not bit-packed).
 - Exports record the network and the observation it needs; load_policy rebuilds the right class; a model whose
   observation settings disagree with the flags or a stage is a one-line error; loading is device-agnostic.
-- Each batch reaches the device in one copy (hand_over packs it into one buffer).
 """
 from __future__ import annotations
 
@@ -322,65 +321,6 @@ def test_evaluate_policy_observes_as_the_network_needs(name):
     wrong = t.evaluate_policy(q, scenarios, frames, heuristic=False)
     right = t.evaluate_policy(q, scenarios, q.frames, heuristic=False)
     assert np.array_equal(wrong["steps"], right["steps"]) and np.array_equal(wrong["overlap"], right["overlap"])
-
-
-# ----------------------------------------------------------------------------- device hand-over
-def test_hand_over_packs_a_batch_into_one_buffer():
-    rng = np.random.default_rng(0)
-    arrays = [rng.integers(0, 256, (4, 15, 11, 11)).astype(np.uint8), rng.random((4, 40), np.float32),
-              rng.integers(0, 4, 5).astype(np.int64), rng.random(3, np.float32), np.arange(3, dtype=np.int8)]
-    cpu = torch.device("cpu")
-    plain, buffer = rc.hand_over(arrays, cpu)
-    assert buffer is None and all(np.shares_memory(t.numpy(), a) for t, a in zip(plain, arrays))  # no copy
-    packed, buffer = rc.hand_over(arrays, cpu, pack=True)
-    assert buffer.dtype == torch.uint8 and buffer.numel() >= sum(a.nbytes for a in arrays)
-    for t, a in zip(packed, arrays):
-        assert t.shape == a.shape and t.numpy().dtype == a.dtype and np.array_equal(t.numpy(), a)
-        assert t.untyped_storage().data_ptr() == buffer.untyped_storage().data_ptr()  # one buffer, one copy
-    again, same = rc.hand_over(arrays[:2], cpu, buffer, pack=True)
-    assert same is buffer and np.array_equal(again[1].numpy(), arrays[1])
-    big = [np.zeros(buffer.numel() + 1, np.uint8)]
-    assert rc.hand_over(big, cpu, buffer, pack=True)[1].numel() >= buffer.numel() + 1  # grown when short
-
-
-def test_a_packed_batch_learns_as_the_plain_one():
-    """learn() on a batch handed over through the buffer gives the same step as on the arrays themselves."""
-    results = []
-    for pack in (False, True):
-        torch.manual_seed(0)
-        args = rc.with_network(rc.Args(network="compact", hidden=16, conv_width=8, margin_loss=1.0), None, None)
-        q, target = rc.build_network({**vars(args), "frames": 3}, 0.5), rc.build_network({**vars(args), "frames": 3}, 0.5)
-        target.load_state_dict(q.state_dict())
-        optimizer = torch.optim.Adam(q.parameters(), lr=1e-3)
-        replay = filled_replay()
-        if pack:
-            original = replay.batch
-            replay.batch = lambda *a, _r=replay, _o=original, **k: packed_batch(_r, _o, *a, **k)
-        out = rc.learn(q, target, optimizer, replay, args, 0.4, np.random.default_rng(0))
-        results.append((float(out[0]), float(out[2]), [p.detach().clone() for p in q.parameters()]))
-    assert results[0][:2] == results[1][:2]
-    assert all(torch.equal(a, b) for a, b in zip(results[0][2], results[1][2]))
-
-
-def packed_batch(replay, original, n, beta, rng, device, labels=False):
-    slot, tensors = original(n, beta, rng, device, labels)
-    out, replay.pinned = rc.hand_over([t.numpy() for t in tensors], device, replay.pinned, pack=True)
-    return slot, out
-
-
-def filled_replay(seed=0) -> rc.Replay:
-    observation = multiscale()
-    channels, view = rc.frame_shape(observation)
-    core = core_for(observation, worlds=2, seed=seed)
-    replay = rc.Replay(2 * 64, 2, view, 3, 1, 0.99, 0.5, channels)
-    every, rng = np.arange(2), np.random.default_rng(seed)
-    slot = replay.add_frames(every, rc.observe(core), np.zeros(2, np.int64), np.zeros(2, bool))
-    for step in range(40):
-        action = rng.integers(0, 4, 2)
-        ev = core.step(action[:, None])
-        replay.set_transition(slot, action, ev["reward"][:, 0], ev["terminated"], rng.integers(0, 5, 2))
-        slot = replay.add_frames(every, rc.observe(core), np.full(2, step + 1), np.zeros(2, bool))
-    return replay
 
 
 @pytest.mark.parametrize("name", TRAINERS)

@@ -73,7 +73,6 @@ def test_margin_loss_weights_by_hand():
     # state 0: the label leads by 1 >= margin 0.5: max(1, 0.5) - 1 = 0; state 1: max(0, 2 + 0.5) - 0 = 2.5;
     # state 2 has no label
     assert rc.large_margin_loss(q, label, 0.5).item() == pytest.approx(2.5 / 2)
-    assert rc.labelled(rc.Args(margin_loss=0.5)) and not rc.labelled(rc.Args())
 
 
 @pytest.mark.parametrize("network", ["fig6.8", "compact"])
@@ -93,43 +92,6 @@ def test_a_hint_free_model_warm_starts_with_the_same_q(tmp_path, monkeypatch, ne
     hint = torch.eye(rc.HINTS)[torch.tensor([0, 1, 2, 3, 4])]
     with torch.no_grad():
         assert torch.allclose(q(maps, torch.cat([extras, hint], 1)), loaded(maps, extras), atol=2e-3)
-
-
-def test_an_infinite_hint_bonus_walks_the_hint_and_zero_is_the_agent(tmp_path):
-    import evaluate
-
-    common = dict(policy="rainbow", dataset=str(ROOT / "maps/structured_eval.npz"), limit=6, quiet=True)
-    hint = evaluate.main(evaluate.Args(**common, hint_bonus=float("inf"), compare="greedy-far-first",
-                                       out=str(tmp_path / "inf")))
-    policies = json.loads((tmp_path / "inf" / "compare.json").read_text())["policies"]
-    assert policies == ["rainbow (hint bonus inf)", "greedy-far-first"]  # a variant never reads as the agent
-    assert (tmp_path / "inf" / "compare.md").read_text().startswith("# rainbow (hint bonus inf) vs greedy-far-first\n")
-    assert hint["hint_bonus"] == float("inf")
-    evaluate.main(evaluate.Args(**{**common, "policy": "greedy-far-first"}, out=str(tmp_path / "ff")))
-
-    def overlaps(run):
-        return np.loadtxt(tmp_path / run / "episodes.csv", delimiter=",", skiprows=1, usecols=7, ndmin=1)
-
-    assert len(overlaps("inf")) == 6 and np.array_equal(overlaps("inf"), overlaps("ff"))
-    agent = evaluate.main(evaluate.Args(**common, out=str(tmp_path / "agent")))
-    assert "hint_bonus" not in agent
-
-
-@pytest.mark.parametrize("kw, msg", [(dict(hint_bonus=-0.5), "--hint-bonus must be >= 0 .*got -0.5"),
-                                     (dict(hint_bonus=float("nan")), "--hint-bonus must be >= 0 .*got nan"),
-                                     (dict(hint_bonus=1.0, policy="greedy"), "--hint-bonus is for the rainbow policy, not gr"),
-                                     (dict(hint_bonus=1.0, checkpoint="plain.pt"), "--hint-bonus needs a model with the hint")])
-def test_bad_hint_bonus_is_a_one_line_error_and_writes_nothing(tmp_path, monkeypatch, kw, msg):
-    import evaluate
-
-    monkeypatch.chdir(tmp_path)
-    rc.export(rc.build_network({**rc.COMPACT, "network": "compact", "frames": 2, "hidden": 16, "view": rc.VIEW}, 0.5),
-              rc.Args(export="plain.pt", network="compact"), {})
-    before = sorted(p.name for p in tmp_path.iterdir())
-    with pytest.raises(ValueError, match=msg) as error:
-        evaluate.main(evaluate.Args(**{"policy": "rainbow", **kw}, maps=(str(ROOT / "maps/external/empty-8-8.map"),),
-                                    out="out", quiet=True))
-    assert "\n" not in str(error.value) and sorted(p.name for p in tmp_path.iterdir()) == before
 
 
 def tiny(tmp_path, **kw) -> rc.Args:

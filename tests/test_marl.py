@@ -368,13 +368,12 @@ def test_team_rollout_labels_are_the_multiagent_rollout_where_needed():
     assert w.tolist() == list(range(6)) and np.array_equal(everywhere, gw.team_rollout_actions(core))
 
 
-def test_rollout_teacher_run_records_its_flags(tmp_path, monkeypatch, restore_sigint, capsys):
+def test_rollout_teacher_run_records_its_flags(tmp_path, monkeypatch, restore_sigint):
     monkeypatch.chdir(tmp_path)
     rm.main(small_args(tmp_path, teacher="rollout", margin_loss=1.0, total_steps=300,
                        eval_every=0, quiet=True))
     info = json.loads((tmp_path / "m.json").read_text())
     assert info["args"]["teacher"] == "rollout" and info["args"]["margin_loss"] == 1.0
-    assert "rollout teacher:" in capsys.readouterr().out
 
 
 @pytest.mark.parametrize("kw, msg", [(dict(teacher="lkh"), "--teacher must be one of heuristic, rollout")])

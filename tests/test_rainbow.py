@@ -902,8 +902,7 @@ def test_a_heuristic_without_a_target_leaves_the_agent_its_move(tmp_path, monkey
     """When the teacher answers WAIT (no target), the agent's own move is taken and stored: WAIT is no
     action to learn (Q has four outputs), as rainbow_marl does."""
     monkeypatch.chdir(tmp_path)
-    monkeypatch.setattr(gw.GridWorldCore, "heuristic_actions",
-                        lambda self, *a, **k: np.full((self.B, self.N), gw.WAIT))
+    monkeypatch.setattr(gw, "heuristic_actions", lambda core, *a, **k: np.full((core.B, core.N), gw.WAIT))
     made = []
 
     class Recorded(rc.Replay):

@@ -154,7 +154,7 @@ def test_the_channels_last_forward_is_the_grouped_convolution_of_scale_major_cha
     maps = torch.randint(0, 256, (5, 45, 11, 11), dtype=torch.uint8)
     extras = torch.rand(5, 1 + 3 * rc.EXTRAS)
     x = maps.reshape(5, 3, 3, 5, 11, 11).transpose(1, 2).reshape(5, 45, 11, 11).float() / 255  # frames within a scale
-    expected = rc.dueling(torch.cat([nn.Sequential(*q.conv)(x.contiguous()), extras], 1), q.value, q.advantage)
+    expected = q.head(torch.cat([nn.Sequential(*q.conv)(x.contiguous()), extras], 1))
     with torch.no_grad():
         assert torch.allclose(q(maps, extras), expected, atol=1e-5)
 

@@ -15,6 +15,7 @@ import pytest
 import torch
 from conftest import tiny_trainer_args as tiny
 
+import gridworld as gw
 import rainbow_cpp as rc
 import rainbow_marl as rm
 
@@ -47,7 +48,7 @@ def test_a_full_disk_keeps_the_previous_checkpoint(name, tmp_path, monkeypatch, 
 def test_a_second_run_in_a_held_run_folder_is_refused(name, tmp_path, monkeypatch, restore_sigint):
     t = TRAINERS[name]
     monkeypatch.chdir(tmp_path)
-    held = t.lock_run(str(tmp_path / "runs" / "t"))
+    held = gw.lock_run(str(tmp_path / "runs" / "t"))
     try:
         with pytest.raises(ValueError, match="is in use by another run"):
             t.main(tiny(t))

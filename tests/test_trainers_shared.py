@@ -38,13 +38,13 @@ TRAINERS = {"rainbow_cpp": rc, "rainbow_marl": rm}
 SHARED = [
     "SCRIPT", "HERE", "DEEP", "OBSERVATION", "VIEW", "CHANNELS", "LAST_ACTIONS", "OUT_OF_BOUNDS", "EXTRAS",
     "OUT_OF_BOUNDS_SCALE", "MOVES", "DISSERTATION", "NETWORKS", "SCALE_KEYS", "HINTS", "COMPACT", "CHECKPOINT_KEYS",
-    "UNREADABLE", "NoisyLinear", "QNetwork", "CompactQNetwork", "dueling", "build_network", "observation_settings",
-    "frame_shape", "device_of", "SumTree", "Replay", "hand_over", "Stacker", "observe", "to_torch",
-    "stuck", "large_margin_loss", "labelled", "learn", "diagnostics_of", "eval_config", "heuristic_baseline",
+    "UNREADABLE", "NoisyLinear", "Dueling", "QNetwork", "CompactQNetwork", "build_network", "observation_settings",
+    "frame_shape", "device_of", "SumTree", "Replay", "Stacker", "observe", "to_torch",
+    "stuck", "large_margin_loss", "learn", "diagnostics_of", "eval_config", "heuristic_baseline",
     "world_paths", "write_episode_video",
     "save_checkpoint", "export", "read_model", "network_of", "policy_from", "load_policy",
-    "load_checkpoint", "check_flags", "run_name_of", "with_network", "observed", "lineage", "host", "seed_everything",
-    "start_run", "exported_by", "hinted", "save_run", "lock_run", "stop_signals", "peak_memory_mb", "progress_bar", "reason",
+    "load_checkpoint", "check_flags", "with_network", "observed", "seed_everything", "start_run", "hinted", "save_run",
+    "progress_bar", "reason",
 ]
 # the Args fields that the shared code reads, equal in both (flag, default and docstring)
 SHARED_FLAGS = ["exp_name", "seed", "run_name", "threads", "cuda", "torch_deterministic", "quiet",
@@ -147,13 +147,13 @@ def test_observation_constants_come_from_gridworld(name):
 
 
 # ----------------------------------------------------------------------------- run names, widths
-@pytest.mark.parametrize("name", TRAINERS)
-def test_run_names(name):
-    t = TRAINERS[name]
-    assert re.fullmatch(rf"{name}__7__\d+", t.run_name_of(t.Args(seed=7)))
-    assert t.run_name_of(t.Args(run_name="mine", resume=True)) == "mine"
+def test_run_names():
+    assert re.fullmatch(r"rainbow_cpp__7__\d+", gw.run_folder(None, "rainbow_cpp", 7, False))
+    assert gw.run_folder("mine", "rainbow_cpp", 1, True) == "mine"
     with pytest.raises(ValueError, match="--resume needs --run-name"):
-        t.run_name_of(t.Args(resume=True))
+        gw.run_folder(None, "rainbow_cpp", 1, True)
+    with pytest.raises(ValueError, match="--run-name must not be empty"):
+        gw.run_folder(" ", "rainbow_cpp", 1, False)
 
 
 @pytest.mark.parametrize("name", TRAINERS)
