@@ -2667,6 +2667,38 @@ def team_rollout_actions(core: GridWorldCore, worlds=None, dead_ends_first: bool
     return chosen
 
 
+# ----------------------------------------------------------------------------- scenarios replayed
+def replay_config(scenarios: list[Scenario], sensor: str = "full", sensor_range: int = 3, sensor_failure: float = 0.0,
+                  observation: dict | None = None) -> EnvConfig:
+    """Worlds that replay the given scenarios as they are (maps, starts, coverage), as many agents as the most starts,
+    observed as `observation` says (EnvConfig fields; default: the deep observation)."""
+    return EnvConfig(load_state=True, load_random=False, sensor=sensor, sensor_range=sensor_range,
+                     sensor_failure=sensor_failure, number_agents=max(len(s.starts) for s in scenarios),
+                     **(observation or {}))
+
+
+def heuristic_walk(config: EnvConfig, scenarios: list[Scenario], random_ties: bool, dead_ends_first: bool,
+                   far_first: bool = False) -> dict:
+    """The navigation heuristic alone (targets claimed among agents) once on each scenario, the yardstick beside a
+    learned agent: per-episode arrays of the metrics, each world's own steps and its time-save factor."""
+    core = GridWorldCore(config, len(scenarios))
+    core.configure(scenarios=scenarios)
+    core.reset()
+    done, steps = np.zeros(core.B, bool), np.zeros(core.B, np.int64)
+    while not done.all():
+        ev = core.step(np.where(done[:, None], WAIT, heuristic_actions(core, random_ties, dead_ends_first, far_first)))
+        steps += ~done
+        done |= ev["terminated"] | ev["truncated"]
+    m = core.metrics()
+    return {**m, "steps": steps, "time_save": steps / np.maximum(m["n_poi_start"], 1)}
+
+
+def world_paths(cells: list, steps: np.ndarray, active: np.ndarray) -> list[np.ndarray]:
+    """Per world, its agents' (row, col) at every step to its own end, (T + 1, N, 2), from the cells of every step."""
+    path = np.stack(cells)
+    return [path[:t + 1, b][:, active[b]].astype(np.int64) for b, t in enumerate(steps)]
+
+
 # ----------------------------------------------------------------------------- spaces
 def agent_observation_space(cfg: EnvConfig) -> spaces.Space:
     """One agent's observation space under `cfg`: the shapes a trainer sizes its network by."""
@@ -3110,6 +3142,15 @@ def write_video(frames: list[np.ndarray], path: str, fps: int = 10) -> str:
     os.makedirs(os.path.dirname(path) or ".", exist_ok=True)
     clip.write_videofile(path, codec="libx264", audio=False, logger=None)
     return path
+
+
+def write_episode_video(scenario: Scenario, path: np.ndarray, video: str, sensor: str = "full",
+                        sensor_range: int = 3, flag: str = "--capture-video") -> str:
+    """An MP4 of one episode, replayed from its agents' cells, through the write rule."""
+    frames = replay_frames(scenario, path, config=dict(sensor=sensor, sensor_range=sensor_range))
+    with staged_output(video, "video", overwrite=True, flag=flag) as tmp:
+        write_video(frames, tmp)
+    return video
 
 
 def plot_path(scenario: Scenario, paths, path: str = "", title: str = "", ax=None) -> str:

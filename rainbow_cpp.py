@@ -647,48 +647,6 @@ def diagnostics_of(q: nn.Module, maps: torch.Tensor, extras: torch.Tensor, q_all
             **{f"dead_units_{k}": (seen[0] <= 0).all(0).float().mean().item() for k, seen in first.items()}}
 
 
-# ----------------------------------------------------------------------------- evaluation
-def eval_config(scenarios: list, sensor: str = "full", sensor_range: int = 3, sensor_failure: float = 0.0,
-                observation: dict | None = None) -> gridworld.EnvConfig:
-    """Worlds that replay the given scenarios as they are (maps, starts, coverage), as many agents as the
-    most starts, observed as `observation` says (observation_settings' fields; default: deep)."""
-    return gridworld.EnvConfig(load_state=True, load_random=False, sensor=sensor, sensor_range=sensor_range,
-                               sensor_failure=sensor_failure, number_agents=max(len(s.starts) for s in scenarios),
-                               **(observation or {}))
-
-
-def heuristic_baseline(config: gridworld.EnvConfig, scenarios: list, random_ties: bool,
-                       dead_ends_first: bool, far_first: bool = False) -> dict:
-    """The navigation heuristic alone (targets claimed among agents) once on each scenario: the yardstick
-    printed beside every evaluation. Per-episode arrays: gridworld's metrics, each world's own steps."""
-    core = gridworld.GridWorldCore(config, len(scenarios))
-    core.configure(scenarios=scenarios)
-    core.reset()
-    done, steps = np.zeros(core.B, bool), np.zeros(core.B, np.int64)
-    while not done.all():
-        heuristic_moves = gridworld.heuristic_actions(core, random_ties, dead_ends_first, far_first)
-        ev = core.step(np.where(done[:, None], gridworld.WAIT, heuristic_moves))
-        steps += ~done
-        done |= ev["terminated"] | ev["truncated"]
-    m = core.metrics()
-    return {**m, "steps": steps, "time_save": steps / np.maximum(m["n_poi_start"], 1)}
-
-
-def world_paths(cells: list, steps: np.ndarray, active: np.ndarray) -> list[np.ndarray]:
-    """Per world, its agents' (row, col) at every step to its own end, (T + 1, N, 2), from the cells of every step."""
-    path = np.stack(cells)
-    return [path[:t + 1, b][:, active[b]].astype(np.int64) for b, t in enumerate(steps)]
-
-
-def write_episode_video(scenario: gridworld.Scenario, path: np.ndarray, video: str, sensor: str = "full",
-                        sensor_range: int = 3) -> str:
-    """An MP4 of one evaluation episode, replayed through gridworld from its agents' cells."""
-    frames = gridworld.replay_frames(scenario, path, config=dict(sensor=sensor, sensor_range=sensor_range))
-    with gridworld.staged_output(video, "video", overwrite=True, flag="--capture-video") as tmp:
-        gridworld.write_video(frames, tmp)
-    return video
-
-
 # ----------------------------------------------------------------------------- files
 def save_checkpoint(path: str, state: dict, kind: str = "run", flag: str = "checkpoint") -> None:
     """torch.save through gridworld's staged write: a crash or a full disk never leaves half a file."""
@@ -1050,7 +1008,7 @@ def evaluate_policy(q: QNetwork, scenarios: list, frames: int, sensor: str = "fu
     `trajectories`, a list, gets each episode's (T + 1, 1, 2) cells; `seed` draws the sensor failures."""
     spec = q.network() if hasattr(q, "network") else {"frames": frames}
     observation, frames, device = observation_settings(spec), spec["frames"], device_of(q)
-    core = gridworld.GridWorldCore(eval_config(scenarios, sensor, sensor_range, sensor_failure, observation),
+    core = gridworld.GridWorldCore(gridworld.replay_config(scenarios, sensor, sensor_range, sensor_failure, observation),
                                    len(scenarios), seed=seed)
     core.configure(scenarios=scenarios)
     core.reset()
@@ -1091,7 +1049,7 @@ def evaluate_policy(q: QNetwork, scenarios: list, frames: int, sensor: str = "fu
             stack.push(observe(core, hint, dead_ends_first, far_first), np.zeros(n, bool))
     q.reset_noise(True)
     if trajectories is not None:
-        trajectories.extend(world_paths(cells, steps, core.active))
+        trajectories.extend(gridworld.world_paths(cells, steps, core.active))
     m = core.metrics()
     return {**m, "steps": steps, "time_save": steps / np.maximum(m["n_poi_start"], 1),
             "rho": steps / np.maximum(core.n_free, 1),
@@ -1261,9 +1219,9 @@ def main(args: Args) -> None:
             pool = [s for s in eval_set if s.obstacles.shape[0] <= max(stage.size, 5)]  # cpp_eval starts at 5
             pool = pool[::max(1, len(pool) // args.eval_maps)][:args.eval_maps]
             if stage_index not in yardstick:
-                yardstick[stage_index] = heuristic_baseline(eval_config(pool, stage.sensor, stage.sensor_range), pool,
-                                                            args.heuristic_random_ties, args.heuristic_dead_ends,
-                                                            args.heuristic_far_first)
+                config = gridworld.replay_config(pool, stage.sensor, stage.sensor_range)
+                yardstick[stage_index] = gridworld.heuristic_walk(config, pool, args.heuristic_random_ties,
+                                                                  args.heuristic_dead_ends, args.heuristic_far_first)
             paths = [] if args.capture_video else None
             m = evaluate_policy(q, pool, args.frame_stack, stage.sensor, stage.sensor_range,
                                 random_ties=args.heuristic_random_ties, dead_ends_first=args.heuristic_dead_ends,
@@ -1278,8 +1236,8 @@ def main(args: Args) -> None:
                       f"{result['heuristic_overlap']:.3f} on the same maps), completed {100 * result['completion']:.0f}%, "
                       f"heuristic share {result['heuristic_share']:.2f}")
             if paths:
-                write_episode_video(pool[0], paths[0], os.path.join(run_dir, "videos", f"step_{global_step}.mp4"),
-                                    stage.sensor, stage.sensor_range)
+                gridworld.write_episode_video(pool[0], paths[0], os.path.join(run_dir, "videos", f"step_{global_step}.mp4"),
+                                              stage.sensor, stage.sensor_range)
         if args.curve_every and global_step % args.curve_every < B:
             tick = time.time()
             point = {"step": global_step, "stage": stages[stage_index].name, "wall_seconds": round(tick - t0),

@@ -27,9 +27,7 @@ import dataclasses
 import json
 import math
 import os
-import shlex
 import signal
-import subprocess
 import sys
 import tempfile
 import threading
@@ -590,28 +588,8 @@ def evaluate_table(table: QTable, scenarios: list[gridworld.Scenario], heuristic
 
 
 def provenance() -> dict:
-    """What made a run: the code's git commit (dirty: tracked files changed since), the host's
-    CPU and cores, the date (UTC) and the command line."""
-    root = os.path.dirname(os.path.abspath(__file__))
-
-    def git(*command: str) -> str | None:
-        try:
-            done = subprocess.run(["git", *command], cwd=root, capture_output=True, text=True, timeout=10)
-        except (OSError, subprocess.SubprocessError):
-            return None
-        return done.stdout.strip() if done.returncode == 0 else None
-
-    commit = git("rev-parse", "HEAD")
-    status = git("status", "--porcelain", "--untracked-files=no") if commit else None
-    cpu = None
-    try:
-        with open("/proc/cpuinfo") as f:
-            cpu = next((line.split(":", 1)[1].strip() for line in f if line.startswith("model name")), None)
-    except OSError:
-        pass
-    return dict(git_commit=commit, git_dirty=None if status is None else bool(status), cpu=cpu,
-                cores=os.cpu_count(), date=datetime.now(UTC).isoformat(timespec="seconds"),
-                command=shlex.join([os.path.basename(sys.executable), *sys.argv]))
+    """What made a run (gridworld.provenance: the code's git commit, the machine, the command line) and the date."""
+    return gridworld.provenance("tabular_q.py") | {"date": datetime.now(UTC).isoformat(timespec="seconds")}
 
 
 # ----------------------------------------------------------------------------- training

@@ -57,7 +57,8 @@ class Args:
 
 def rate_entry(run_dir: str, wall_seconds: float) -> dict:
     """One rate's figures from its run's TensorBoard events, and the git commit of the code that trained it."""
-    return {"git_commit": rc.host()["git_commit"], **{tag.split("/")[1]: scalars(run_dir, tag) for tag in TAGS},
+    return {"git_commit": gridworld.provenance("benchmarks/learning_rate.py")["git_commit"],
+            **{tag.split("/")[1]: scalars(run_dir, tag) for tag in TAGS},
             "q_values": scalars(run_dir, "losses/q_values")[-1:], "wall_seconds": round(wall_seconds)}
 
 
@@ -76,7 +77,8 @@ def main(a: Args) -> None:
     flags = ["--network", a.network, *RECIPE]
     results = {"flags": flags, "stage_steps_scale": a.stage_steps_scale, "total_steps": total, "seed": a.seed,
                "eval_every": a.eval_every, "eval_maps": a.eval_maps, "torch": torch.__version__, "rates": {},
-               "provenance": rc.host() | {"date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")}}
+               "provenance": gridworld.provenance("benchmarks/learning_rate.py")
+               | {"date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")}}
     if os.path.exists(a.out):
         try:
             with open(a.out) as f:

@@ -214,6 +214,6 @@ def test_the_recipe_learns_stage_1_from_reward_alone(tmp_path, monkeypatch, rest
                                  obstacles_random=True)
     with_fallback = rc.evaluate_policy(q, maps, 3, heuristic=True, dead_ends_first=False)
     alone = rc.evaluate_policy(q, maps, 3, heuristic=False, dead_ends_first=False)
-    teacher = rc.heuristic_baseline(rc.eval_config(maps), maps, random_ties=True, dead_ends_first=False)
+    teacher = gw.heuristic_walk(gw.replay_config(maps), maps, random_ties=True, dead_ends_first=False)
     assert with_fallback["overlap"].mean() < teacher["overlap"].mean()
     assert alone["completed"].mean() >= 0.9

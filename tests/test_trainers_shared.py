@@ -40,8 +40,7 @@ SHARED = [
     "OUT_OF_BOUNDS_SCALE", "MOVES", "DISSERTATION", "NETWORKS", "SCALE_KEYS", "HINTS", "COMPACT", "CHECKPOINT_KEYS",
     "UNREADABLE", "NoisyLinear", "Dueling", "QNetwork", "CompactQNetwork", "build_network", "observation_settings",
     "frame_shape", "device_of", "SumTree", "Replay", "Stacker", "observe", "to_torch",
-    "stuck", "large_margin_loss", "learn", "diagnostics_of", "eval_config", "heuristic_baseline",
-    "world_paths", "write_episode_video",
+    "stuck", "large_margin_loss", "learn", "diagnostics_of",
     "save_checkpoint", "export", "read_model", "network_of", "policy_from", "load_policy",
     "load_checkpoint", "check_flags", "with_network", "observed", "seed_everything", "start_run", "hinted", "save_run",
     "progress_bar", "reason",
@@ -371,11 +370,11 @@ def test_heuristic_baseline_by_hand():
     """A 1x4 corridor from its west end: three steps east, no revisit; a 2x2 room from a corner: three."""
     corridor = gw.Scenario(np.zeros((1, 4), bool), np.array([[0, 0]]))
     room = gw.Scenario(np.zeros((2, 2), bool), np.array([[0, 0]]))
-    m = rc.heuristic_baseline(rc.eval_config([corridor, room]), [corridor, room], False, True)
+    m = gw.heuristic_walk(gw.replay_config([corridor, room]), [corridor, room], False, True)
     assert m["steps"].tolist() == [3, 3] and m["overlap"].tolist() == [0, 0] and m["completed"].all()
     assert m["time_save"].tolist() == [1.0, 1.0]
     two = gw.Scenario(np.zeros((1, 4), bool), np.array([[0, 0], [0, 3]]))  # one agent at each end
-    m = rm.heuristic_baseline(rm.eval_config([two]), [two], False, True)
+    m = gw.heuristic_walk(gw.replay_config([two]), [two], False, True)
     assert m["steps"].tolist() == [1] and m["completed"].all()
 
 
