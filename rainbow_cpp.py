@@ -83,7 +83,7 @@ class Args:
     buffer_size: int = 1_000_000
     """replay memory in transitions (Table 6.1)"""
     learning_rate: float = 5e-5
-    """Adam learning rate (Table 6.1)"""
+    """Adam learning rate (Table 6.1); with --resume it replaces the checkpoint's"""
     adam_eps: float = 1.56e-4
     """Adam epsilon (0.005 / batch size)"""
     gamma: float = 0.999
@@ -872,6 +872,8 @@ def start_run(args: Args, n_stages: int) -> tuple:
         try:
             q.load_state_dict(state["model"])
             optimizer.load_state_dict(state["optimizer"])
+            for group in optimizer.param_groups:  # the flag's rate, not the saved one: a diverged run resumes slower
+                group["lr"] = args.learning_rate
             rng.bit_generator.state = state["numpy_rng"]
             torch.set_rng_state(state["torch_rng"])
         except UNREADABLE as e:
@@ -1243,7 +1245,7 @@ def main(args: Args) -> None:
             point = {"step": global_step, "stage": stages[stage_index].name, "wall_seconds": round(tick - t0),
                      "sps": round((global_step - curve_clock[0]) / max(tick - curve_clock[1], 1e-9)),
                      "steps_since_resume": global_step - replay_born,  # the replay memory restarted then
-                     "peak_rss_mb": gridworld.peak_memory_mb()}
+                     "peak_rss_mb": gridworld.peak_memory_mb(), "learning_rate": args.learning_rate}
             point |= curve_point(q, held_out, args)
             curve.append(point | {"eval_seconds": round(time.time() - tick)})
             gridworld.write_json(os.path.join(run_dir, "curve.json"), {"args": asdict(args), "curve": curve}, "run",
@@ -1256,7 +1258,10 @@ def main(args: Args) -> None:
                       f"{100 * point['cpp_eval_alone']['completion']:.1f}% / "
                       f"{100 * point['structured_eval_alone']['completion']:.1f}%, {point['sps']} steps/s")
             curve_clock = (global_step, time.time())
-            save()  # the point is kept with the checkpoint
+            save()  # the point is kept with the checkpoint, and a copy of it to roll back to if the run diverges
+            kept = os.path.join(run_dir, f"checkpoint_{global_step}.pt")
+            if not os.path.exists(kept):  # a hard link: the next save replaces checkpoint.pt, this file stays
+                os.link(os.path.join(run_dir, "checkpoint.pt"), kept)
         # TRY NOT TO MODIFY: checkpoint and export
         if args.save_every and global_step % args.save_every < B:
             save()

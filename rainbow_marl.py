@@ -89,7 +89,7 @@ class Args:
     buffer_size: int = 1_000_000
     """replay memory in transitions, shared by all agents (Table 7.1)"""
     learning_rate: float = 1e-5
-    """Adam learning rate (Table 7.1)"""
+    """Adam learning rate (Table 7.1); with --resume it replaces the checkpoint's"""
     adam_eps: float = 1.56e-4
     """Adam epsilon"""
     gamma: float = 0.999
@@ -871,6 +871,8 @@ def start_run(args: Args, n_stages: int) -> tuple:
         try:
             q.load_state_dict(state["model"])
             optimizer.load_state_dict(state["optimizer"])
+            for group in optimizer.param_groups:  # the flag's rate, not the saved one: a diverged run resumes slower
+                group["lr"] = args.learning_rate
             rng.bit_generator.state = state["numpy_rng"]
             torch.set_rng_state(state["torch_rng"])
         except UNREADABLE as e:

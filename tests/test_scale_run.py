@@ -72,6 +72,21 @@ def test_curve_points_go_to_the_json_and_the_checkpoint_and_survive_a_resume(tmp
     resumed = json.loads((tmp_path / "runs" / "t" / "curve.json").read_text())["curve"]
     assert [p["step"] for p in resumed] == [32, 64, 96] and resumed[:2] == curve
     assert [p["steps_since_resume"] for p in resumed] == [32, 64, 32]  # the memory restarted at 64
+    rolled_back = torch.load(tmp_path / "runs" / "t" / "checkpoint_32.pt", weights_only=True)
+    assert rolled_back["global_step"] == 32 and rolled_back["curve"] == curve[:1]  # each point can be rolled back to
+
+
+@pytest.mark.parametrize("t", [rc, rm])
+def test_the_learning_rate_flag_replaces_the_saved_rate_on_resume(t, tmp_path, monkeypatch, restore_sigint):
+    monkeypatch.chdir(tmp_path)
+    t.main(tiny(t, total_steps=64, learning_rate=5e-4))
+    loaded, start_run = [], t.start_run
+    monkeypatch.setattr(t, "start_run", lambda *a: loaded.append(start_run(*a)) or loaded[-1])
+    t.main(tiny(t, total_steps=96, learning_rate=2.5e-4, resume=True))
+    assert [g["lr"] for g in loaded[0][4].param_groups] == [2.5e-4]
+    state = torch.load(tmp_path / "runs" / "t" / "checkpoint.pt", weights_only=True)
+    assert state["args"]["learning_rate"] == 2.5e-4
+    assert [g["lr"] for g in state["optimizer"]["param_groups"]] == [2.5e-4]
 
 
 def test_a_resumed_run_refills_its_memory_before_learning_and_keeps_its_target(tmp_path, monkeypatch,
