@@ -53,17 +53,21 @@ PARTS = {"classical": "classical_cpp.json", "structured": "planners_structured.j
          "team_rollout": "team_rollout.json", "sensors": "rainbow_sensors.json",
          "rainbow_cpp": "rainbow_cpp.json", "rainbow_marl": "rainbow_marl.json",
          "tabular": os.path.join("tabular", "fig5_5.json"),
-         "scale_references": "rainbow_cpp_scale_references.json", "rainbow_cpp_scale": "rainbow_cpp_scale.json"}
+         "scale_references": "rainbow_cpp_scale_references.json", "rainbow_cpp_scale": "rainbow_cpp_scale.json",
+         "scale_figures": "rainbow_cpp_scale_figures.json"}
 IN_CLASSICAL = {"structured": "structured_eval", "rollout": "rollout"}  # parts classical_cpp.compare also holds
 MODELS = {"rainbow_cpp": evaluate.DEFAULT_CHECKPOINT["rainbow"], "sensors": evaluate.DEFAULT_CHECKPOINT["rainbow"],
           "rainbow_marl": evaluate.DEFAULT_CHECKPOINT["marl"],
           "tabular": evaluate.DEFAULT_CHECKPOINT["tabular"], "scale_references": evaluate.DEFAULT_CHECKPOINT["rainbow"],
-          "rainbow_cpp_scale": "models/rainbow_cpp_dissertation_run.pt"}  # the scale run's committed training state
+          "rainbow_cpp_scale": "models/rainbow_cpp_dissertation_run.pt",  # the scale run's committed training state
+          "scale_figures": "models/rainbow_cpp_dissertation_run.pt"}
 SCRIPTS = {"rainbow_cpp": "rainbow_cpp.py", "sensors": "rainbow_cpp.py", "rainbow_marl": "rainbow_marl.py",
-           "tabular": "tabular_q.py", "scale_references": "rainbow_cpp.py", "rainbow_cpp_scale": "rainbow_cpp.py"}
+           "tabular": "tabular_q.py", "scale_references": "rainbow_cpp.py", "rainbow_cpp_scale": "rainbow_cpp.py",
+           "scale_figures": "rainbow_cpp.py"}
 LEARNING_RATE_SWEEP = "learning_rate_sweep.json"  # benchmarks/learning_rate.py's JSON, read when present
 LEARNING_RATE_FIG68 = "learning_rate_fig68.json"  # the same with --network fig6.8, read when present
 SCALE_REFERENCES = ("greedy", "greedy-far-first", "lkh")  # planners drawn beside the scale run's curve (and the model)
+FIGURES_PER_SIZE, FIGURES_BOX_SIZES = 100, (5, 10, 15, 20, 25, 30)  # Figs. 6.13-6.16: all of cpp_eval; the box plots' sizes
 ALGORITHM_NAMES = {"q-learning": "Q-learning", "sarsa": "SARSA", "double-q": "Double Q-learning",
                    "watkins": "Watkins's Q(λ)"}  # tabular_q.py --algorithm, as the figure's title names it
 CH5_EVAL = os.path.join("maps", "ch5_eval.npz")  # Fig. 5.5's maps, with their size and requested obstacles
@@ -82,7 +86,7 @@ FIGURES = {"planners_by_size": "planners_overlap_by_size.png", "planners_externa
            "planners_structured": "planners_structured.png", "marl_baselines": "marl_baselines.png",
            "rainbow_cpp": "rainbow_overlap_by_size.png", "sensors": "rainbow_sensors.png",
            "rainbow_marl": "rainbow_marl_time_save.png", "fig5_4": "tabular_fig5_4.png", "fig5_5": "tabular_fig5_5.png",
-           "rainbow_cpp_scale": "rainbow_cpp_scale.png"}
+           "rainbow_cpp_scale": "rainbow_cpp_scale.png", "scale_figures": "rainbow_cpp_scale_figures.png"}
 # The numbers the report holds the results against, each with its source; no other number in the text is typed.
 REFERENCE = {
     # Table 5.1: training time (s) of 100,000 episodes on 6x6, columns (heuristic, 0 obstacles), (heuristic, 1),
@@ -96,6 +100,9 @@ REFERENCE = {
     # the repository's acceptance targets for the learned agents (issues #5 and #7)
     "rainbow_cpp_sizes": (5, 20), "rainbow_cpp_completion": 1.0, "rainbow_cpp_overlap": 0.05,
     "rainbow_marl_time_save": {"2": 0.53, "5": 0.30, "10": 0.15},  # mean t_sf on marl_eval
+    # §6.5.2: mean overlap below 0.05 at every size (Figs. 6.13, 6.15), completion 100% with the fallback; without it
+    # (Fig. 6.16) completion 99.3% and 97.4% of the episodes no outlier (overlap > 0.5 or truncated)
+    "fig_6_15_overlap": 0.05, "fig_6_16_completion": 0.993, "fig_6_16_favourable": 0.974, "outlier_overlap": 0.5,
 }
 NOT_COLLECTED = ("*Not collected:* no `{file}` here; `python report.py collect --parts {part}` fills it in "
                  "once `{model}` is trained (`{script}`).")
@@ -325,6 +332,28 @@ def scale_curve(checkpoint: str) -> dict:
             "curve": json.loads(json.dumps(state.get("curve", [])))}  # as JSON keeps it (its keys strings)
 
 
+def scale_figures(model: str, quiet: bool = False) -> dict:
+    """Figs. 6.13-6.16 of the scale run's model: every cpp_eval map (FIGURES_PER_SIZE a size, their first start) with
+    the fallback (the dissertation's heuristic, deterministic ties) and without it; per size every episode's overlap,
+    whether it completed and whether it was truncated."""
+    import hashlib
+
+    import rainbow_cpp
+    state = rainbow_cpp.read_model(model)
+    with open(model, "rb") as f:
+        digest = hashlib.sha256(f.read()).hexdigest()
+    scenarios, sizes = classical_cpp.cpp_eval_subset(FIGURES_PER_SIZE)
+    episodes = [(f"cpp_eval.npz[{z}x{z}]", classical_cpp.with_starts(s)) for s, z in zip(scenarios, sizes)]
+    result = {"model": {"path": os.path.relpath(model, ROOT), "sha256": digest, "global_step": state.get("global_step"),
+                        "stage": state.get("stage")}, "per_size": FIGURES_PER_SIZE}
+    for key, fallback in (("fallback", True), ("alone", False)):
+        rows = evaluate.run_rainbow(evaluate.Args(policy="rainbow", checkpoint=model, heuristic=fallback,
+                                                  heuristic_dead_ends=False, quiet=quiet), episodes)
+        result[key] = {str(z): {k: [r[k] for r, y in zip(rows, sizes) if y == z]
+                                for k in ("overlap", "completed", "truncated")} for z in dict.fromkeys(sizes.tolist())}
+    return result
+
+
 def family_stats(rows: list[dict]) -> dict:
     """Mean overlap, completion and heuristic share of some episodes."""
     return dict(overlap=round(float(np.mean([r["overlap"] for r in rows])), 4),
@@ -497,6 +526,8 @@ def collect(args: Collect, staging: str) -> list[str]:
             result = scale_references(model, args.quiet)
         elif part == "rainbow_cpp_scale":
             result = scale_curve(model)
+        elif part == "scale_figures":
+            result = scale_figures(model, args.quiet)
         else:
             result = tabular_results(model, args.quiet)
         result["provenance"] = provenance(started, args)
@@ -1212,6 +1243,42 @@ def scale_lines(scale: dict | None, refs: dict | None) -> list[str]:
     return lines
 
 
+def _outliers(f: dict) -> int:
+    return sum(o > REFERENCE["outlier_overlap"] or t for o, t in zip(f["overlap"], f["truncated"]))
+
+
+def scale_figure_lines(figs: dict | None) -> list[str]:
+    """Figs. 6.13-6.16 of the scale run's model, per size, beside §6.5.2's statements."""
+    if figs is None:
+        return [NOT_COLLECTED.format(file=PARTS["scale_figures"], part="scale_figures", model=MODELS["scale_figures"],
+                                     script="rainbow_cpp.py")]
+    m, goal = figs["model"], REFERENCE["fig_6_15_overlap"]
+    rows = []
+    for z, f in figs["fallback"].items():
+        a = figs["alone"][z]
+        done = [o for o, c in zip(a["overlap"], a["completed"]) if c]
+        rows.append([f"{z}×{z}", f"{np.mean(f['overlap']):.3f}", f"{np.std(f['overlap']):.3f}",
+                     f"{np.max(f['overlap']):.3f}", f"{100 * np.mean(f['completed']):.1f}%",
+                     f"{np.mean(done):.3f}" if done else "–", f"{100 * np.mean(a['completed']):.1f}%", str(_outliers(a))])
+    fallback = [o for f in figs["fallback"].values() for o in f["overlap"]]
+    alone = list(figs["alone"].values())
+    n = sum(len(a["overlap"]) for a in alone)
+    below = sum(np.mean(f["overlap"]) <= goal for f in figs["fallback"].values())
+    return [f"The model in `{m['path']}` (sha256 {m['sha256'][:12]}, {m['global_step']:,} steps) on every cpp_eval "
+            f"map ({figs['per_size']} a size, {len(fallback):,} episodes), with the fallback (the dissertation's "
+            "heuristic, deterministic ties) and without it (alone). Overlap alone is over the completed episodes; "
+            f"outliers: overlap > {REFERENCE['outlier_overlap']} or truncated (§6.5.2.3).", "",
+            f"- With the fallback: mean overlap ≤ {goal} at {below} of {len(rows)} sizes (§6.5.2: every size), completion "
+            f"{100 * np.mean([c for f in figs['fallback'].values() for c in f['completed']]):.1f}% (§6.5.2: 100%), "
+            f"{sum(_outliers(f) for f in figs['fallback'].values())} outliers (§6.5.2: none).",
+            f"- Without it: completion {100 * np.mean([c for a in alone for c in a['completed']]):.1f}% "
+            f"(§6.5.2: {100 * REFERENCE['fig_6_16_completion']:.1f}%), no outlier "
+            f"{100 * (1 - sum(map(_outliers, alone)) / max(n, 1)):.1f}% (§6.5.2: "
+            f"{100 * REFERENCE['fig_6_16_favourable']:.1f}%).", "",
+            table(["size", "overlap", "std", "max", "completion", "alone: overlap", "alone: completion",
+                   "alone: outliers"], rows), "", f"![Figs. 6.13-6.16 of the scale run's model]({FIGURES['scale_figures']})"]
+
+
 def render(results: dict) -> str:
     """RESULTS.md from `load_results`: a pure function of the JSON, the same files always give the same text."""
     paths = results["paths"]
@@ -1243,6 +1310,8 @@ def render(results: dict) -> str:
         tabular = tabular_lines(results["tabular"], results["fig5_4"])
     with reading(paths["rainbow_cpp_scale"] or "the scale run's results"):
         scale = scale_lines(results["rainbow_cpp_scale"], results["scale_references"])
+    with reading(paths["scale_figures"] or "the scale run's figures"):
+        scale += ["", "### Figs. 6.13-6.16 of the scale run's model", "", *scale_figure_lines(results["scale_figures"])]
     with reading(paths["learning_rate"] or "the learning-rate sweep"):
         scale += ["", *learning_rate_lines(results["learning_rate"])]
     if results["learning_rate_fig68"] is not None:
@@ -1460,11 +1529,44 @@ def plot_scale(scale: dict, refs: dict | None, folder: str) -> list[str]:
         ax.legend(fontsize=8)
     for name in ("cpp_eval", "structured_eval"):
         axes[2].plot(steps, [100 * p[f"{name}_alone"]["completion"] for p in scale["curve"]], "o-", label=name)
-    axes[2].axhline(99.3, ls=":", color="grey", label="dissertation: 99.3%")
+    axes[2].axhline(100 * REFERENCE["fig_6_16_completion"], ls=":", color="grey",
+                    label=f"dissertation: {100 * REFERENCE['fig_6_16_completion']:.1f}%")
     axes[2].set(title="completion without the fallback", xlabel="environment steps (M)", ylabel="% of maps",
                 xlim=(0, max(steps) * 1.05), ylim=(0, 101))
     axes[2].legend(fontsize=8)
     return [_save(fig, folder, "rainbow_cpp_scale")]
+
+
+def plot_scale_figures(figs: dict, folder: str) -> list[str]:
+    """Figs. 6.13-6.16: box plots of the overlap at sizes 5-30 with the fallback and without it (completed episodes),
+    the mean, ±2σ and range by size with the fallback, and the outliers by size without it."""
+    import matplotlib.pyplot as plt
+    fig, axes = plt.subplots(2, 2, figsize=(13, 8))
+    boxed = [str(z) for z in FIGURES_BOX_SIZES if str(z) in figs["fallback"]]
+    for ax, key, title in ((axes[0, 0], "fallback", "Fig. 6.13: with the fallback"),
+                           (axes[0, 1], "alone", "Fig. 6.14: without it (completed episodes)")):
+        data = [[o for o, c in zip(figs[key][z]["overlap"], figs[key][z]["completed"]) if c] or [np.nan] for z in boxed]
+        ax.boxplot(data, whis=1.5)
+        ax.set_xticks(range(1, len(boxed) + 1), [f"{z}×{z}" for z in boxed])
+        ax.set(title=title, xlabel="map size", ylabel="overlap")
+    sizes = [int(z) for z in figs["fallback"]]
+    overlaps = [np.array(f["overlap"]) for f in figs["fallback"].values()]
+    mean, std = np.array([o.mean() for o in overlaps]), np.array([o.std() for o in overlaps])
+    ax = axes[1, 0]
+    ax.fill_between(sizes, np.maximum(mean - 2 * std, 0), mean + 2 * std, alpha=0.25, label="±2σ")
+    ax.plot(sizes, mean, "o-", label="mean")
+    ax.plot(sizes, [o.max() for o in overlaps], "v:", label="max")
+    ax.plot(sizes, [o.min() for o in overlaps], "^:", label="min")
+    ax.axhline(REFERENCE["fig_6_15_overlap"], ls="--", color="grey", label="§6.5.2: mean below this")
+    ax.set(title="Fig. 6.15: overlap by size, with the fallback", xlabel="map size", ylabel="overlap", ylim=(0, None))
+    ax.legend(fontsize=8)
+    ax = axes[1, 1]
+    ax.bar(sizes, [_outliers(a) for a in figs["alone"].values()], color="tab:red")
+    ax.set(title=f"Fig. 6.16: outliers without the fallback (overlap > {REFERENCE['outlier_overlap']} or truncated)",
+           xlabel="map size",
+           ylabel=f"episodes of {figs['per_size']}")
+    fig.suptitle(f"The scale run's model at {figs['model']['global_step']:,} steps on cpp_eval")
+    return [_save(fig, folder, "scale_figures")]
 
 
 def plot(results: dict, folder: str) -> list[str]:
@@ -1492,6 +1594,9 @@ def plot(results: dict, folder: str) -> list[str]:
     if results["rainbow_cpp_scale"] is not None:
         with reading(paths["rainbow_cpp_scale"]):
             written += plot_scale(results["rainbow_cpp_scale"], results["scale_references"], folder)
+    if results["scale_figures"] is not None:
+        with reading(paths["scale_figures"]):
+            written += plot_scale_figures(results["scale_figures"], folder)
     return written
 
 
@@ -1508,7 +1613,8 @@ class Collect:
     one core), sensors (rainbow_cpp's model beside the frontier baselines under camera and LiDAR of range 1-5 and
     sensor failures, Figs. 6.17-6.22), rainbow_cpp, rainbow_marl, tabular, scale_references (the planners and the
     shipped model on the scale run's held-out maps: ~20 min on one core, most of it LKH), rainbow_cpp_scale (the scale
-    run's learning curve, read from its committed checkpoint: seconds)"""
+    run's learning curve, read from its committed checkpoint: seconds), scale_figures (Figs. 6.13-6.16 of the scale run's
+    model on all of cpp_eval)"""
     reuse: bool = False
     """collect only the parts whose JSON is missing under --out"""
     overwrite: bool = False

@@ -421,9 +421,9 @@ def test_a_part_whose_model_is_not_trained_is_skipped(tmp_path, monkeypatch, cap
     assert report.parts_to_collect(args) == ["classical"]
     assert "rainbow_marl: skipped" in capsys.readouterr().out
     shutil.copy(RESULTS / "classical_cpp.json", tmp_path / "classical_cpp.json")
+    scale = ["rainbow_cpp_scale", "scale_figures"] if (ROOT / report.MODELS["rainbow_cpp_scale"]).exists() else []
     assert report.parts_to_collect(report.Collect(out=str(tmp_path), reuse=True)) == [
-        "team_rollout", "sensors", "rainbow_cpp", "tabular", "scale_references", "rainbow_cpp_scale"][
-        :None if (ROOT / report.MODELS["rainbow_cpp_scale"]).exists() else -1]  # classical_cpp.json alone
+        "team_rollout", "sensors", "rainbow_cpp", "tabular", "scale_references", *scale]  # classical_cpp.json alone
 
 
 # ----------------------------------------------------------------------------- collect, on tiny settings
@@ -466,10 +466,12 @@ def tiny(tmp_path, monkeypatch, small_report_maps):
     small = {name: [gw.Scenario(s.obstacles, s.starts[:1], s.covered) for s in gw.load_dataset(
         str(ROOT / "maps" / f"{name}.npz"))[:2]] for name in rainbow_cpp.CURVE_SLICES}
     monkeypatch.setattr(rainbow_cpp, "curve_maps", lambda: small)
+    monkeypatch.setattr(report, "FIGURES_PER_SIZE", 2)
+    scale_run = _tiny_scale_checkpoint(rainbow_cpp, models / "run.pt")
     monkeypatch.setattr(report, "MODELS", {
         "rainbow_cpp": rainbow, "sensors": rainbow,
         "rainbow_marl": _tiny_model(rainbow_marl, models / "rainbow_marl.pt", {}), "tabular": str(table),
-        "scale_references": rainbow, "rainbow_cpp_scale": _tiny_scale_checkpoint(rainbow_cpp, models / "run.pt")})
+        "scale_references": rainbow, "rainbow_cpp_scale": scale_run, "scale_figures": scale_run})
     return tmp_path
 
 
@@ -729,3 +731,17 @@ def test_the_marl_targets_count_the_agent_counts_below_greedy_and_partition_on_b
     text = "\n".join(report.marl_lines(mr, {}))
     assert "Below the greedy planner and partition at 1 of the 2 agent counts 2-3; on `structured_eval` at 1 of 2." in text
     assert "| 3 | 0.500 | 0.500 | 0.500 | 0.400 | 0.600 | 0.333 | 100% |" in text
+
+
+def test_the_scale_figures_count_outliers_and_completion_by_hand():
+    """Two 5x5 episodes: with the fallback overlaps 0 and 0.1; alone one completes at 0.6 (an outlier: > 0.5) and one
+    is truncated (an outlier, not completed)."""
+    figs = {"model": {"path": "models/x.pt", "sha256": "ab" * 32, "global_step": 1000, "stage": 0}, "per_size": 2,
+            "fallback": {"5": {"overlap": [0.0, 0.1], "completed": [True, True], "truncated": [False, False]}},
+            "alone": {"5": {"overlap": [0.6, 3.0], "completed": [True, False], "truncated": [False, True]}}}
+    assert report._outliers(figs["alone"]["5"]) == 2 and report._outliers(figs["fallback"]["5"]) == 0
+    text = "\n".join(report.scale_figure_lines(figs))
+    assert "mean overlap ≤ 0.05 at 1 of 1 sizes" in text and "completion 100.0% (§6.5.2: 100%)" in text
+    assert "Without it: completion 50.0% (§6.5.2: 99.3%), no outlier 0.0% (§6.5.2: 97.4%)" in text
+    assert "| 5×5 | 0.050 | 0.050 | 0.100 | 100.0% | 0.600 | 50.0% | 2 |" in text
+    assert report.scale_figure_lines(None)[0].startswith("*Not collected:*")
