@@ -268,29 +268,44 @@ def rainbow_results(per_size: int, p2p_maps: int, model: str, quiet: bool = Fals
         for row in evaluate.run_planner("greedy-far-first", classical_cpp.external_episodes()):
             result["greedy_far_first_external"].setdefault(row["map"], []).append(row["overlap"])
         bar.update()
-        p2p = evaluate.scenarios_from(evaluate.Args(dataset=os.path.join(ROOT, "maps", "p2p_eval.npz"), limit=p2p_maps))
-        shortest = [r["steps"] for r in evaluate.run_planner("greedy", p2p)]  # one target: greedy walks a shortest path
-        rows = evaluate.run_rainbow(evaluate.Args(policy="rainbow", checkpoint=model, quiet=quiet), p2p)
-        result["p2p"] = {"maps": len(p2p), "optimal": round(float(np.mean([r["steps"] == b for r, b in
-                                                                            zip(rows, shortest)])), 4),
-                         "completion": round(float(np.mean([r["completed"] for r in rows])), 4),
-                         "mean_extra_steps": round(float(np.mean([r["steps"] - b for r, b in zip(rows, shortest)])), 3)}
+        result["p2p"] = rainbow_p2p(evaluate.Args(policy="rainbow", checkpoint=model, quiet=quiet), p2p_maps)
         bar.update()
-        result["external"] = {}
-        for row in evaluate.run_rainbow(evaluate.Args(policy="rainbow", checkpoint=model, quiet=quiet),
-                                        classical_cpp.external_episodes()):
-            result["external"].setdefault(row["map"], []).append(row["overlap"])
+        result["external"] = rainbow_external(evaluate.Args(policy="rainbow", checkpoint=model, quiet=quiet))
         bar.update()
+        result["structured_eval"] = rainbow_structured(evaluate.Args(policy="rainbow", checkpoint=model, quiet=quiet))
         scenarios, families, _ = classical_cpp.structured_eval_subset(classical_cpp.STRUCTURED_PER_BAND)
-        rows = evaluate.run_rainbow(evaluate.Args(policy="rainbow", checkpoint=model, quiet=quiet),
-                                    [(f"structured_eval.npz[{f}]", s) for s, f in zip(scenarios, families)])
-        result["structured_eval"] = {f: family_stats([r for r, g in zip(rows, families) if g == f])
-                                     for f in dict.fromkeys(families)} | {"all": family_stats(rows)}
         rows = evaluate.run_planner("greedy-far-first", [(f"structured_eval.npz[{f}]", s) for s, f in zip(scenarios, families)])
         result["greedy_far_first_structured"] = {f: family_stats([r for r, g in zip(rows, families) if g == f])
                                                  for f in dict.fromkeys(families)} | {"all": family_stats(rows)}
         bar.update()
     return result
+
+
+def rainbow_p2p(args: evaluate.Args, maps: int) -> dict:
+    """A rainbow_cpp model on the first `maps` p2p_eval scenarios: how often it walks a shortest path, completion and
+    the mean steps past a shortest path."""
+    p2p = evaluate.scenarios_from(evaluate.Args(dataset=os.path.join(ROOT, "maps", "p2p_eval.npz"), limit=maps))
+    shortest = [r["steps"] for r in evaluate.run_planner("greedy", p2p)]  # one target: greedy walks a shortest path
+    rows = evaluate.run_rainbow(args, p2p)
+    return {"maps": len(p2p), "optimal": round(float(np.mean([r["steps"] == b for r, b in zip(rows, shortest)])), 4),
+            "completion": round(float(np.mean([r["completed"] for r in rows])), 4),
+            "mean_extra_steps": round(float(np.mean([r["steps"] - b for r, b in zip(rows, shortest)])), 3)}
+
+
+def rainbow_external(args: evaluate.Args) -> dict:
+    """A rainbow_cpp model's overlaps on the MovingAI episodes, by map."""
+    result = {}
+    for row in evaluate.run_rainbow(args, classical_cpp.external_episodes()):
+        result.setdefault(row["map"], []).append(row["overlap"])
+    return result
+
+
+def rainbow_structured(args: evaluate.Args) -> dict:
+    """A rainbow_cpp model on the planners' structured_eval subset, by family and over all."""
+    scenarios, families, _ = classical_cpp.structured_eval_subset(classical_cpp.STRUCTURED_PER_BAND)
+    rows = evaluate.run_rainbow(args, [(f"structured_eval.npz[{f}]", s) for s, f in zip(scenarios, families)])
+    return {f: family_stats([r for r, g in zip(rows, families) if g == f]) for f in dict.fromkeys(families)} | {
+        "all": family_stats(rows)}
 
 
 def scale_references(model: str, quiet: bool = False) -> dict:
@@ -332,10 +347,11 @@ def scale_curve(checkpoint: str) -> dict:
             "curve": json.loads(json.dumps(state.get("curve", [])))}  # as JSON keeps it (its keys strings)
 
 
-def scale_figures(model: str, quiet: bool = False) -> dict:
+def scale_figures(model: str, p2p_maps: int, quiet: bool = False) -> dict:
     """Figs. 6.13-6.16 of the scale run's model: every cpp_eval map (FIGURES_PER_SIZE a size, their first start) with
     the fallback (the dissertation's heuristic, deterministic ties) and without it; per size every episode's overlap,
-    whether it completed and whether it was truncated."""
+    whether it completed and whether it was truncated. Then, with the fallback, the report's structured_eval subset,
+    the MovingAI episodes and p2p_eval, as the rainbow_cpp part measures the shipped model."""
     import hashlib
 
     import rainbow_cpp
@@ -351,7 +367,9 @@ def scale_figures(model: str, quiet: bool = False) -> dict:
                                                   heuristic_dead_ends=False, quiet=quiet), episodes)
         result[key] = {str(z): {k: [r[k] for r, y in zip(rows, sizes) if y == z]
                                 for k in ("overlap", "completed", "truncated")} for z in dict.fromkeys(sizes.tolist())}
-    return result
+    args = evaluate.Args(policy="rainbow", checkpoint=model, heuristic_dead_ends=False, quiet=quiet)
+    return result | {"structured_eval": rainbow_structured(args), "external": rainbow_external(args),
+                     "p2p": rainbow_p2p(args, p2p_maps)}
 
 
 def family_stats(rows: list[dict]) -> dict:
@@ -527,7 +545,7 @@ def collect(args: Collect, staging: str) -> list[str]:
         elif part == "rainbow_cpp_scale":
             result = scale_curve(model)
         elif part == "scale_figures":
-            result = scale_figures(model, args.quiet)
+            result = scale_figures(model, args.p2p_maps, args.quiet)
         else:
             result = tabular_results(model, args.quiet)
         result["provenance"] = provenance(started, args)
@@ -1247,8 +1265,9 @@ def _outliers(f: dict) -> int:
     return sum(o > REFERENCE["outlier_overlap"] or t for o, t in zip(f["overlap"], f["truncated"]))
 
 
-def scale_figure_lines(figs: dict | None) -> list[str]:
-    """Figs. 6.13-6.16 of the scale run's model, per size, beside §6.5.2's statements."""
+def scale_figure_lines(figs: dict | None, rb: dict | None = None) -> list[str]:
+    """Figs. 6.13-6.16 of the scale run's model, per size, beside §6.5.2's statements; then its other sets beside the
+    shipped model's (`rb`, the rainbow_cpp part)."""
     if figs is None:
         return [NOT_COLLECTED.format(file=PARTS["scale_figures"], part="scale_figures", model=MODELS["scale_figures"],
                                      script="rainbow_cpp.py")]
@@ -1276,7 +1295,29 @@ def scale_figure_lines(figs: dict | None) -> list[str]:
             f"{100 * (1 - sum(map(_outliers, alone)) / max(n, 1)):.1f}% (§6.5.2: "
             f"{100 * REFERENCE['fig_6_16_favourable']:.1f}%).", "",
             table(["size", "overlap", "std", "max", "completion", "alone: overlap", "alone: completion",
-                   "alone: outliers"], rows), "", f"![Figs. 6.13-6.16 of the scale run's model]({FIGURES['scale_figures']})"]
+                   "alone: outliers"], rows), "", f"![Figs. 6.13-6.16 of the scale run's model]({FIGURES['scale_figures']})",
+            *other_set_lines(figs, rb)]
+
+
+def other_set_lines(figs: dict, rb: dict | None) -> list[str]:
+    """The scale run's model with the fallback on structured_eval's subset, MovingAI and p2p_eval, beside the shipped
+    model where the rainbow_cpp part has it."""
+    if "structured_eval" not in figs:
+        return []
+    rb = rb or {}
+
+    def movingai(part):
+        return f"{np.mean([o for v in part.values() for o in v]):.3f}" if part else "–"
+
+    def pair(key, fmt, get):
+        return [fmt.format(get(figs[key])), fmt.format(get(rb[key])) if key in rb else "–"]
+
+    rows = [[f"structured_eval subset: {f}", *pair("structured_eval", "{:.3f}", lambda d, f=f: d[f]["overlap"])]
+            for f in figs["structured_eval"]]
+    rows += [["MovingAI episodes", movingai(figs["external"]), movingai(rb.get("external"))],
+             [f"p2p_eval ({figs['p2p']['maps']:,}): a shortest path", *pair("p2p", "{:.1%}", lambda d: d["optimal"])],
+             ["p2p_eval: completion", *pair("p2p", "{:.1%}", lambda d: d["completion"])]]
+    return ["", table(["with the fallback: mean overlap, or share", "scale run's model", "shipped model"], rows)]
 
 
 def render(results: dict) -> str:
@@ -1311,7 +1352,8 @@ def render(results: dict) -> str:
     with reading(paths["rainbow_cpp_scale"] or "the scale run's results"):
         scale = scale_lines(results["rainbow_cpp_scale"], results["scale_references"])
     with reading(paths["scale_figures"] or "the scale run's figures"):
-        scale += ["", "### Figs. 6.13-6.16 of the scale run's model", "", *scale_figure_lines(results["scale_figures"])]
+        scale += ["", "### Figs. 6.13-6.16 of the scale run's model", "",
+                  *scale_figure_lines(results["scale_figures"], results["rainbow_cpp"])]
     with reading(paths["learning_rate"] or "the learning-rate sweep"):
         scale += ["", *learning_rate_lines(results["learning_rate"])]
     if results["learning_rate_fig68"] is not None:

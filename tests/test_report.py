@@ -745,3 +745,10 @@ def test_the_scale_figures_count_outliers_and_completion_by_hand():
     assert "Without it: completion 50.0% (§6.5.2: 99.3%), no outlier 0.0% (§6.5.2: 97.4%)" in text
     assert "| 5×5 | 0.050 | 0.050 | 0.100 | 100.0% | 0.600 | 50.0% | 2 |" in text
     assert report.scale_figure_lines(None)[0].startswith("*Not collected:*")
+    figs |= {"structured_eval": {"rooms": {"overlap": 0.2}, "all": {"overlap": 0.2}}, "external": {"a.map": [0.1, 0.3]},
+             "p2p": {"maps": 2, "optimal": 0.5, "completion": 1.0}}
+    shipped = {"structured_eval": {"rooms": {"overlap": 0.1}, "all": {"overlap": 0.1}}, "external": {"a.map": [0.1]},
+               "p2p": {"optimal": 1.0, "completion": 1.0}}
+    text = "\n".join(report.scale_figure_lines(figs, shipped))
+    assert "| structured_eval subset: rooms | 0.200 | 0.100 |" in text and "| MovingAI episodes | 0.200 | 0.100 |" in text
+    assert "| p2p_eval (2): a shortest path | 50.0% | 100.0% |" in text
