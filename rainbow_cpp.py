@@ -23,7 +23,7 @@ import sys
 import time
 import warnings
 import zipfile
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass, fields, replace
 from typing import Literal
 
 import numpy as np
@@ -82,8 +82,8 @@ class Args:
     """worlds acted in together (one forward pass for all)"""
     buffer_size: int = 1_000_000
     """replay memory in transitions (Table 6.1)"""
-    learning_rate: float = 5e-5
-    """Adam learning rate (Table 6.1); with --resume it replaces the checkpoint's"""
+    learning_rate: float | None = None
+    """Adam learning rate (default: Table 6.1's, or a resumed run's own); with --resume it replaces the run's rate"""
     adam_eps: float = 1.56e-4
     """Adam epsilon (0.005 / batch size)"""
     gamma: float = 0.999
@@ -171,6 +171,8 @@ class Args:
     """let --export replace a model (or its JSON) that was there before this run"""
 
 
+LEARNING_RATE = 5e-5  # Table 6.1: --learning-rate when a run sets none
+
 # ============================================================================= shared by the two trainers
 # From here to "end of the shared code" rainbow_cpp.py and rainbow_marl.py are the same, character for
 # character: each script stays self-contained, and tests/test_trainers_shared.py fails on any drift.
@@ -191,6 +193,9 @@ SCALE_KEYS = ("scales", "scale_factor", "scale_view")  # the multiscale observat
 HINTS = LAST_ACTIONS  # --hint: the heuristic's proposed move, one-hot with WAIT (no target) as in the last action
 COMPACT = {"hidden": 256, "frame_stack": 3, "conv_width": 32,
            **{k: getattr(gridworld.EnvConfig(), k) for k in SCALE_KEYS}}  # the compact network's defaults
+RUN_FLAGS = ("exp_name", "run_name", "resume", "threads", "cuda", "torch_deterministic", "track", "wandb_project_name",
+             "wandb_entity", "quiet", "capture_video", "total_steps", "time_limit", "eval_every", "eval_maps",
+             "save_every", "curve_every", "export", "overwrite", "init_from")  # how a run goes, not what it learns
 CHECKPOINT_KEYS = ("model", "optimizer", "global_step", "stage", "wall", "numpy_rng", "torch_rng")
 UNREADABLE = (OSError, EOFError, RuntimeError, KeyError, IndexError, TypeError, ValueError, AttributeError,
               pickle.UnpicklingError, zipfile.BadZipFile)  # what torch.load of a foreign or truncated file raises
@@ -778,7 +783,7 @@ def check_flags(args: Args) -> None:
         if not 0.0 <= getattr(args, name) <= 1.0:
             raise ValueError(f"--{name.replace('_', '-')} must be in [0, 1], got {getattr(args, name)}")
     for name in ("stage_steps_scale", "learning_rate", "adam_eps"):
-        if not getattr(args, name) > 0:
+        if getattr(args, name) is not None and not getattr(args, name) > 0:
             raise ValueError(f"--{name.replace('_', '-')} must be > 0, got {getattr(args, name)}")
     for name in ("replay_ratio", "alpha", "sigma0", "margin_loss", "margin", "max_grad_norm", "time_limit",
                  "td_weight"):
@@ -786,6 +791,27 @@ def check_flags(args: Args) -> None:
             raise ValueError(f"--{name.replace('_', '-')} must be >= 0, got {getattr(args, name)}")
     if args.export:  # before training, not at the first save
         gridworld.check_export(args.export, f"{SCRIPT}.py")
+
+
+def settle_flags(args: Args) -> Args:
+    """The flags a run trains with. On --resume the run's own, from its checkpoint: a flag left at its default takes the
+    run's value and one set otherwise must agree with it, but for --learning-rate (which replaces the run's rate) and
+    RUN_FLAGS (the command line's). A rate set nowhere is LEARNING_RATE."""
+    kept = {}
+    if args.resume:
+        path = os.path.join("runs", gridworld.run_folder(args.run_name, args.exp_name, args.seed, True), "checkpoint.pt")
+        defaults = {f.name: f.default for f in fields(Args)}
+        for name, value in (load_checkpoint(path).get("args") or {}).items():
+            given = getattr(args, name, None)
+            if name not in defaults or name in RUN_FLAGS or given == value:
+                continue
+            if given == defaults[name]:
+                kept[name] = value
+            elif name != "learning_rate":
+                raise ValueError(f"--{name.replace('_', '-')} {given} contradicts {path} ({name.replace('_', ' ')} "
+                                 f"{value}): a resumed run keeps its flags (--learning-rate may change)")
+    args = replace(args, **kept)
+    return args if args.learning_rate is not None else replace(args, learning_rate=LEARNING_RATE)
 
 
 def with_network(args: Args, model: dict | None, source: str | None) -> Args:
@@ -1061,6 +1087,7 @@ def evaluate_policy(q: QNetwork, scenarios: list, frames: int, sensor: str = "fu
 # ----------------------------------------------------------------------------- training
 def main(args: Args) -> None:
     # TRY NOT TO MODIFY: flags, files read and seeding; nothing is written before all of them check out
+    args = settle_flags(args)
     check_flags(args)
     check_teacher(args)
     if args.curve_every < 0:

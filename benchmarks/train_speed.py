@@ -91,7 +91,7 @@ def write_stage(config: gridworld.EnvConfig, path: str) -> str:
 
 
 def spec_of(network: str, hidden: int) -> rc.Args:
-    return rc.with_network(rc.Args(network=network, hidden=hidden), None, None)
+    return rc.settle_flags(rc.with_network(rc.Args(network=network, hidden=hidden), None, None))
 
 
 def row(network, hidden, batch_size, threads, device, replay_ratio=None, ms_per_update=None, env_steps_per_s=None,

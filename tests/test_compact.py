@@ -97,7 +97,7 @@ def test_the_default_network_is_fig_6_8_on_the_cpu_without_a_gpu(name, tmp_path,
     t = TRAINERS[name]
     monkeypatch.chdir(tmp_path)
     monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
-    args, _, q, target, *_ = t.start_run(tiny(t, cuda=True), 1)
+    args, _, q, target, *_ = t.start_run(t.settle_flags(tiny(t, cuda=True)), 1)
     assert args.network == "fig6.8" and args.conv_width is None and args.scales is None
     assert type(q) is t.QNetwork and t.device_of(q).type == "cpu" and t.device_of(target).type == "cpu"
 

@@ -82,7 +82,7 @@ def test_a_hint_free_model_warm_starts_with_the_same_q(tmp_path, monkeypatch, ne
     rc.export(parent, rc.Args(export=str(tmp_path / "p.pt"), network=network), {})
     monkeypatch.chdir(tmp_path)
     args = rc.Args(run_name="w", init_from=str(tmp_path / "p.pt"), hint=True, threads=1, quiet=True)
-    q = rc.start_run(args, 1)[2]
+    q = rc.start_run(rc.settle_flags(args), 1)[2]
     assert q.hint and q.network()["hint"]
     loaded = rc.load_policy(str(tmp_path / "p.pt"))
     q.reset_noise(False)
@@ -112,10 +112,10 @@ def test_a_hinted_run_exports_a_model_that_evaluates(tmp_path, monkeypatch, rest
     m = rc.evaluate_policy(q, maps, 3)
     assert m["completed"].all()
     # a resume keeps the hint without the flag; resuming a hint-free checkpoint with --hint is refused
-    rc.main(replace(tiny(tmp_path, total_steps=260), resume=True))
+    rc.main(replace(tiny(tmp_path, total_steps=260, margin_loss=0.5), resume=True))
     assert json.loads((tmp_path / "m.json").read_text())["network"]["hint"] is True
     rc.main(tiny(tmp_path, run_name="plain", overwrite=True))  # a new run over the first run's export
-    with pytest.raises(ValueError, match="--hint contradicts .*no hint input"):
+    with pytest.raises(ValueError, match=r"--hint True contradicts runs/plain/checkpoint.pt \(hint False\)"):
         rc.main(replace(tiny(tmp_path, run_name="plain", total_steps=260), resume=True, hint=True))
 
 

@@ -89,6 +89,24 @@ def test_the_learning_rate_flag_replaces_the_saved_rate_on_resume(t, tmp_path, m
     assert [g["lr"] for g in state["optimizer"]["param_groups"]] == [2.5e-4]
 
 
+@pytest.mark.parametrize("t", [rc, rm])
+def test_a_resumed_run_keeps_its_own_flags_and_refuses_contradicting_ones(t, tmp_path, monkeypatch, restore_sigint):
+    """`--resume --run-name NAME` alone continues the run as it was started; a training flag set otherwise is a
+    one-line error; how the run goes (--total-steps, --quiet, ...) is the command line's."""
+    monkeypatch.chdir(tmp_path)
+    t.main(tiny(t, total_steps=64, learning_rate=5e-4, gamma=0.99, stage_steps_scale=0.5, n_step=3))
+    started = torch.load(tmp_path / "runs" / "t" / "checkpoint.pt", weights_only=True)["args"]
+    resumed = t.settle_flags(t.Args(run_name="t", resume=True, total_steps=96))
+    for key in ("learning_rate", "gamma", "stage_steps_scale", "n_step", "num_envs", "buffer_size", "hidden",
+                "network", "conv_width"):
+        assert getattr(resumed, key) == started[key], key
+    assert resumed.total_steps == 96 and not resumed.quiet  # RUN_FLAGS: from the command line
+    with pytest.raises(ValueError, match=r"^--gamma 0.9 contradicts runs/t/checkpoint.pt \(gamma 0.99\)"):
+        t.settle_flags(t.Args(run_name="t", resume=True, gamma=0.9))
+    assert t.settle_flags(t.Args(run_name="t", resume=True, learning_rate=1e-4)).learning_rate == 1e-4
+    assert t.settle_flags(t.Args(run_name="u")).learning_rate == t.LEARNING_RATE  # Table 6.1's / 7.1's
+
+
 def test_a_resumed_run_refills_its_memory_before_learning_and_keeps_its_target(tmp_path, monkeypatch,
                                                                                restore_sigint):
     monkeypatch.chdir(tmp_path)

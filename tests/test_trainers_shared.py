@@ -43,7 +43,7 @@ SHARED = [
     "stuck", "large_margin_loss", "learn", "diagnostics_of",
     "save_checkpoint", "export", "read_model", "network_of", "policy_from", "load_policy",
     "load_checkpoint", "check_flags", "with_network", "observed", "seed_everything", "start_run", "hinted", "save_run",
-    "progress_bar", "reason",
+    "progress_bar", "reason", "RUN_FLAGS", "settle_flags",
 ]
 # the Args fields that the shared code reads, equal in both (flag, default and docstring)
 SHARED_FLAGS = ["exp_name", "seed", "run_name", "threads", "cuda", "torch_deterministic", "quiet",
