@@ -75,7 +75,7 @@ class Args:
     stage_steps_scale: float = 1.0
     """multiply every stage's base_steps (Tables 6.2 and 6.3 are 31 M steps each)"""
     total_steps: int = 0
-    """stop after this many environment steps (0: the whole schedule)"""
+    """stop after this many environment steps (0: the whole schedule; past it, its last stage goes on)"""
     time_limit: float = 0.0
     """stop after this many minutes of training wall time, resumed time included (0: no limit)"""
     num_envs: int = 16
@@ -83,7 +83,7 @@ class Args:
     buffer_size: int = 1_000_000
     """replay memory in transitions (Table 6.1)"""
     learning_rate: float | None = None
-    """Adam learning rate (default: Table 6.1's, or a resumed run's own); with --resume it replaces the run's rate"""
+    """Adam learning rate (default: Table 6.1's 5e-5, or a resumed run's own); with --resume it replaces the run's"""
     adam_eps: float = 1.56e-4
     """Adam epsilon (0.005 / batch size)"""
     gamma: float = 0.999
@@ -1103,7 +1103,7 @@ def main(args: Args) -> None:
     channels, view = frame_shape(observation)
     machine = gridworld.provenance(f"{SCRIPT}.py") | {"torch_version": torch.__version__}
     ends = np.cumsum([max(1, int(s.base_steps * args.stage_steps_scale)) for s in stages])
-    total = int(min(ends[-1], args.total_steps or ends[-1]))
+    total = int(args.total_steps or ends[-1])  # past the curriculum's end its last stage goes on
 
     # env setup
     core = gridworld.GridWorldCore(stage_config(stages[stage_index], args), args.num_envs, seed=args.seed + global_step)
@@ -1150,7 +1150,7 @@ def main(args: Args) -> None:
                  time.time() - t0, parent, machine, curve)
 
     while global_step < total and not stop["signal"] and not (args.time_limit and time.time() - t0 >= 60 * args.time_limit):
-        if global_step >= ends[stage_index]:  # the next curriculum stage, at each world's next reset
+        if stage_index + 1 < len(stages) and global_step >= ends[stage_index]:  # the next stage, at each world's reset
             stage_index += 1
             core.configure(stage_config(stages[stage_index], args))
         # ALGO LOGIC: put action logic here
@@ -1224,7 +1224,7 @@ def main(args: Args) -> None:
             updates_due += B * args.replay_ratio / args.batch_size
         while updates_due >= 1:
             updates_due -= 1
-            beta = args.beta_start + (1 - args.beta_start) * min(1.0, global_step / total)
+            beta = args.beta_start + (1 - args.beta_start) * min(1.0, global_step / min(total, ends[-1]))
             diagnose = global_step - last_loss_log >= 1000  # the first update after each 1000 steps
             td_loss, q_values, margin_loss, diagnostics = learn(q, target, optimizer, replay, args, beta, rng,
                                                                 diagnose)

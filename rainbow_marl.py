@@ -73,7 +73,7 @@ class Args:
     stage_steps_scale: float = 1.0
     """multiply every stage's base_steps (Table 7.2 is 41 M steps per number of agents)"""
     total_steps: int = 0
-    """stop after this many environment steps (0: the whole schedule)"""
+    """stop after this many environment steps (0: the whole schedule; past it, its last stage goes on)"""
     time_limit: float = 0.0
     """stop after this many minutes of training wall time, resumed time included (0: no limit)"""
     reward_structure: str = "size_invariant"
@@ -89,7 +89,7 @@ class Args:
     buffer_size: int = 1_000_000
     """replay memory in transitions, shared by all agents (Table 7.1)"""
     learning_rate: float | None = None
-    """Adam learning rate (default: Table 7.1's, or a resumed run's own); with --resume it replaces the run's rate"""
+    """Adam learning rate (default: Table 7.1's 1e-5, or a resumed run's own); with --resume it replaces the run's"""
     adam_eps: float = 1.56e-4
     """Adam epsilon"""
     gamma: float = 0.999
@@ -1104,7 +1104,7 @@ def main(args: Args) -> None:
     channels, view = frame_shape(observation)
     machine = gridworld.provenance(f"{SCRIPT}.py") | {"torch_version": torch.__version__}
     ends = np.cumsum([max(1, int(s.base_steps * args.stage_steps_scale)) for s in stages])
-    total = int(min(ends[-1], args.total_steps or ends[-1]))
+    total = int(args.total_steps or ends[-1])  # past the curriculum's end its last stage goes on
     B = args.num_envs
     lock = gridworld.lock_run(run_dir)  # held until this run ends
     if args.track:  # CleanRL's way: W&B mirrors the TensorBoard events
@@ -1128,7 +1128,7 @@ def main(args: Args) -> None:
 
     # TRY NOT TO MODIFY: start the game
     while global_step < total and not stop["signal"] and not (args.time_limit and time.time() - t0 >= 60 * args.time_limit):
-        if core is not None and global_step >= ends[stage_index]:  # the next curriculum stage
+        if core is not None and stage_index + 1 < len(stages) and global_step >= ends[stage_index]:  # the next stage
             stage_index += 1
             if stages[stage_index].number_agents == core.N:  # picked up at each world's next reset
                 core.configure(stage_config(stages[stage_index], args))
@@ -1241,7 +1241,7 @@ def main(args: Args) -> None:
             updates_due += B * args.replay_ratio / args.batch_size
         while updates_due >= 1:
             updates_due -= 1
-            beta = args.beta_start + (1 - args.beta_start) * min(1.0, global_step / total)
+            beta = args.beta_start + (1 - args.beta_start) * min(1.0, global_step / min(total, ends[-1]))
             diagnose = global_step - last_loss_log >= 1000  # the first update after each 1000 steps
             td_loss, q_values, margin_loss, diagnostics = learn(q, target, optimizer, replay, args, beta, rng,
                                                                 diagnose)

@@ -90,6 +90,19 @@ def test_the_learning_rate_flag_replaces_the_saved_rate_on_resume(t, tmp_path, m
 
 
 @pytest.mark.parametrize("t", [rc, rm])
+def test_past_the_curriculum_its_last_stage_goes_on(t, tmp_path, monkeypatch, restore_sigint):
+    """Two stages of 32 steps and --total-steps 96: the second stage runs 64 steps (the scale run's "continue the
+    last stage"), with no stage past the last."""
+    monkeypatch.chdir(tmp_path)
+    agents = ", number_agents: 2" if t is rm else ""
+    (tmp_path / "two.yaml").write_text("".join(f"s{i}: {{size: 5, number_obstacles: 2, base_steps: 32{agents}}}\n"
+                                               for i in (1, 2)))
+    t.main(tiny(t, total_steps=96, stages="two.yaml", stage_steps_scale=1.0))
+    state = torch.load(tmp_path / "runs" / "t" / "checkpoint.pt", weights_only=True)
+    assert state["global_step"] == 96 and state["stage"] == 1
+
+
+@pytest.mark.parametrize("t", [rc, rm])
 def test_a_resumed_run_keeps_its_own_flags_and_refuses_contradicting_ones(t, tmp_path, monkeypatch, restore_sigint):
     """`--resume --run-name NAME` alone continues the run as it was started; a training flag set otherwise is a
     one-line error; how the run goes (--total-steps, --quiet, ...) is the command line's."""
