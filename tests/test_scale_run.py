@@ -229,6 +229,8 @@ def test_the_committed_scale_run_resumes_with_the_documented_command(tmp_path, m
     run.mkdir(parents=True)
     shutil.copy(SCALE_CHECKPOINT, run / "checkpoint.pt")
     monkeypatch.chdir(tmp_path)
+    settled = rc.settle_flags(args)  # the documented flags do not contradict the run's own
+    assert all(getattr(settled, k) == v for k, v in recorded.items() if k not in rc.RUN_FLAGS and hasattr(settled, k))
     resumed = rc.start_run(args, 6)
     q, target = resumed[2], resumed[3]
     assert resumed[6][:2] == (state["global_step"], state["stage"])
