@@ -205,10 +205,10 @@ def test_the_channels_last_forward_is_the_grouped_convolution_of_scale_major_cha
         assert torch.allclose(q(maps, extras), expected, atol=1e-5)
 
 
-def docs_command() -> list[str]:
-    """The scale run's resume command as docs/rainbow_cpp.md gives it (the block after `<!-- scale-run -->`)."""
+def docs_command(marker: str = "scale-run") -> list[str]:
+    """A long run's resume command as docs/rainbow_cpp.md gives it (the block after `<!-- marker -->`)."""
     text = (ROOT / "docs" / "rainbow_cpp.md").read_text()
-    block = text.split("<!-- scale-run -->", 1)[1].split("```bash", 1)[1].split("```", 1)[0]
+    block = text.split(f"<!-- {marker} -->", 1)[1].split("```bash", 1)[1].split("```", 1)[0]
     command = next(line for line in block.replace("\\\n", " ").splitlines() if "rainbow_cpp.py" in line)
     words = shlex.split(command)
     return words[words.index("rainbow_cpp.py") + 1:]
@@ -265,3 +265,21 @@ def test_the_recipe_learns_stage_1_from_reward_alone(tmp_path, monkeypatch, rest
     teacher = gw.heuristic_walk(gw.replay_config(maps), maps, random_ties=True, dead_ends_first=False)
     assert with_fallback["overlap"].mean() < teacher["overlap"].mean()
     assert alone["completed"].mean() >= 0.9
+
+
+FINETUNE_CHECKPOINT = ROOT / "models" / "rainbow_cpp_td_finetune_run.pt"
+
+
+@pytest.mark.skipif(not FINETUNE_CHECKPOINT.exists(), reason="the fine-tuning run has not committed its state yet")
+def test_the_committed_td_finetuning_resumes_with_the_documented_command(tmp_path, monkeypatch, restore_sigint):
+    """Issue 43 item 6: the TD fine-tuning of the shipped model continues from its committed state, TD alone."""
+    run = tmp_path / "runs" / "rainbow_cpp_td_finetune"
+    run.mkdir(parents=True)
+    shutil.copy(FINETUNE_CHECKPOINT, run / "checkpoint.pt")
+    monkeypatch.chdir(tmp_path)
+    args = rc.settle_flags(tyro.cli(rc.Args, args=docs_command("td-finetune")))
+    assert (args.td_weight, args.margin_loss, args.teacher, args.hint, args.heuristic_far_first) == (1.0, 0.0, "heuristic",
+                                                                                                     True, True)
+    state = rc.load_checkpoint(str(FINETUNE_CHECKPOINT))
+    assert rc.start_run(args, 1)[6][:2] == (state["global_step"], state["stage"])
+    assert os.path.getsize(FINETUNE_CHECKPOINT) <= 20 * 2**20
