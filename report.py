@@ -1044,7 +1044,7 @@ def tabular_lines(fig55: dict | None, runs: dict) -> list[str]:
         tail = _same(f"{k // 1000:,}k" if k % 1000 == 0 else f"{k:,}" for _, k in last.values())
         lines += [
             f"**Fig. 5.4** — {episodes} training episodes on {size}×{size} with {starts} starts, heuristic on, "
-            f"mean ρ per {window} episodes (`results/tabular/fig5_4/*.json`; commands in the README):", "",
+            f"mean ρ per {window} episodes (`results/tabular/fig5_4/*.json`; commands in docs/tabular.md):", "",
             f"![Fig. 5.4]({FIGURES['fig5_4']})", "",
             table(["algorithm", f"ρ, last {tail} episodes, 0 obstacles", f"ρ, last {tail} episodes, 1 obstacle"],
                   [[a, f"{last[(a, 0)][0]:.4f}", f"{last[(a, 1)][0]:.4f}"] for a in algorithms]), "",
