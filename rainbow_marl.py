@@ -801,9 +801,9 @@ def settle_flags(args: Args) -> Args:
         path = os.path.join("runs", gridworld.run_folder(args.run_name, args.exp_name, args.seed, True), "checkpoint.pt")
         defaults = {f.name: f.default for f in fields(Args)}
         for name, value in (load_checkpoint(path).get("args") or {}).items():
-            given = getattr(args, name, None)
-            if name not in defaults or name in RUN_FLAGS or given == value:
+            if name not in defaults or name in RUN_FLAGS or getattr(args, name) == value:
                 continue
+            given = getattr(args, name)
             if given == defaults[name]:
                 kept[name] = value
             elif name != "learning_rate":

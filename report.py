@@ -26,6 +26,7 @@ and the figures, which are functions of that JSON.
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import json
 import os
 import shutil
@@ -272,11 +273,10 @@ def rainbow_results(per_size: int, p2p_maps: int, model: str, quiet: bool = Fals
         bar.update()
         result["external"] = rainbow_external(evaluate.Args(policy="rainbow", checkpoint=model, quiet=quiet))
         bar.update()
-        result["structured_eval"] = rainbow_structured(evaluate.Args(policy="rainbow", checkpoint=model, quiet=quiet))
-        scenarios, families, _ = classical_cpp.structured_eval_subset(classical_cpp.STRUCTURED_PER_BAND)
-        rows = evaluate.run_planner("greedy-far-first", [(f"structured_eval.npz[{f}]", s) for s, f in zip(scenarios, families)])
-        result["greedy_far_first_structured"] = {f: family_stats([r for r, g in zip(rows, families) if g == f])
-                                                 for f in dict.fromkeys(families)} | {"all": family_stats(rows)}
+        episodes, families = structured_episodes()
+        rows = evaluate.run_rainbow(evaluate.Args(policy="rainbow", checkpoint=model, quiet=quiet), episodes)
+        result["structured_eval"] = by_family(rows, families)
+        result["greedy_far_first_structured"] = by_family(evaluate.run_planner("greedy-far-first", episodes), families)
         bar.update()
     return result
 
@@ -300,12 +300,24 @@ def rainbow_external(args: evaluate.Args) -> dict:
     return result
 
 
-def rainbow_structured(args: evaluate.Args) -> dict:
-    """A rainbow_cpp model on the planners' structured_eval subset, by family and over all."""
+def structured_episodes() -> tuple[list[tuple[str, gridworld.Scenario]], list[str]]:
+    """The planners' structured_eval subset as episodes, and each one's family."""
     scenarios, families, _ = classical_cpp.structured_eval_subset(classical_cpp.STRUCTURED_PER_BAND)
-    rows = evaluate.run_rainbow(args, [(f"structured_eval.npz[{f}]", s) for s, f in zip(scenarios, families)])
+    return [(f"structured_eval.npz[{f}]", s) for s, f in zip(scenarios, families)], list(families)
+
+
+def by_family(rows: list[dict], families: list[str]) -> dict:
+    """family_stats of some episodes by family and over all."""
     return {f: family_stats([r for r, g in zip(rows, families) if g == f]) for f in dict.fromkeys(families)} | {
         "all": family_stats(rows)}
+
+
+def checkpoint_record(path: str, state: dict) -> dict:
+    """Which training checkpoint a result comes from: its path, hash, steps and stage."""
+    with open(path, "rb") as f:
+        digest = hashlib.sha256(f.read()).hexdigest()
+    return {"path": os.path.relpath(path, ROOT), "sha256": digest, "global_step": state.get("global_step"),
+            "stage": state.get("stage")}
 
 
 def scale_references(model: str, quiet: bool = False) -> dict:
@@ -336,14 +348,10 @@ def scale_references(model: str, quiet: bool = False) -> dict:
 def scale_curve(checkpoint: str) -> dict:
     """The scale run's learning curve and flags, read from its training checkpoint (rainbow_cpp.py --curve-every keeps
     the curve in it), with the checkpoint's steps, stage, wall time and hash."""
-    import hashlib
-
     import rainbow_cpp
     state = rainbow_cpp.load_checkpoint(checkpoint)
-    with open(checkpoint, "rb") as f:
-        digest = hashlib.sha256(f.read()).hexdigest()
-    return {"checkpoint": os.path.relpath(checkpoint, ROOT), "sha256": digest, "global_step": state["global_step"],
-            "stage": state["stage"], "wall_seconds": round(state["wall"]), "args": state["args"],
+    record = checkpoint_record(checkpoint, state)
+    return {"checkpoint": record.pop("path"), **record, "wall_seconds": round(state["wall"]), "args": state["args"],
             "curve": json.loads(json.dumps(state.get("curve", [])))}  # as JSON keeps it (its keys strings)
 
 
@@ -352,24 +360,19 @@ def scale_figures(model: str, p2p_maps: int, quiet: bool = False) -> dict:
     the fallback (the dissertation's heuristic, deterministic ties) and without it; per size every episode's overlap,
     whether it completed and whether it was truncated. Then, with the fallback, the report's structured_eval subset,
     the MovingAI episodes and p2p_eval, as the rainbow_cpp part measures the shipped model."""
-    import hashlib
-
     import rainbow_cpp
-    state = rainbow_cpp.read_model(model)
-    with open(model, "rb") as f:
-        digest = hashlib.sha256(f.read()).hexdigest()
     scenarios, sizes = classical_cpp.cpp_eval_subset(FIGURES_PER_SIZE)
     episodes = [(f"cpp_eval.npz[{z}x{z}]", classical_cpp.with_starts(s)) for s, z in zip(scenarios, sizes)]
-    result = {"model": {"path": os.path.relpath(model, ROOT), "sha256": digest, "global_step": state.get("global_step"),
-                        "stage": state.get("stage")}, "per_size": FIGURES_PER_SIZE}
+    result = {"model": checkpoint_record(model, rainbow_cpp.read_model(model)), "per_size": FIGURES_PER_SIZE}
     for key, fallback in (("fallback", True), ("alone", False)):
         rows = evaluate.run_rainbow(evaluate.Args(policy="rainbow", checkpoint=model, heuristic=fallback,
                                                   heuristic_dead_ends=False, quiet=quiet), episodes)
         result[key] = {str(z): {k: [r[k] for r, y in zip(rows, sizes) if y == z]
                                 for k in ("overlap", "completed", "truncated")} for z in dict.fromkeys(sizes.tolist())}
     args = evaluate.Args(policy="rainbow", checkpoint=model, heuristic_dead_ends=False, quiet=quiet)
-    return result | {"structured_eval": rainbow_structured(args), "external": rainbow_external(args),
-                     "p2p": rainbow_p2p(args, p2p_maps)}
+    episodes, families = structured_episodes()
+    return result | {"structured_eval": by_family(evaluate.run_rainbow(args, episodes), families),
+                     "external": rainbow_external(args), "p2p": rainbow_p2p(args, p2p_maps)}
 
 
 def family_stats(rows: list[dict]) -> dict:
@@ -1605,8 +1608,7 @@ def plot_scale_figures(figs: dict, folder: str) -> list[str]:
     ax = axes[1, 1]
     ax.bar(sizes, [_outliers(a) for a in figs["alone"].values()], color="tab:red")
     ax.set(title=f"Fig. 6.16: outliers without the fallback (overlap > {REFERENCE['outlier_overlap']} or truncated)",
-           xlabel="map size",
-           ylabel=f"episodes of {figs['per_size']}")
+           xlabel="map size", ylabel=f"episodes of {figs['per_size']}")
     fig.suptitle(f"The scale run's model at {figs['model']['global_step']:,} steps on cpp_eval")
     return [_save(fig, folder, "scale_figures")]
 
