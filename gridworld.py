@@ -46,6 +46,7 @@ import json
 import math
 import numbers
 import os
+import pickle
 import platform
 import resource
 import shlex
@@ -54,6 +55,7 @@ import subprocess
 import sys
 import tempfile
 import time
+import warnings
 import zipfile
 import zlib
 from dataclasses import dataclass, field
@@ -621,6 +623,83 @@ def stop_signals() -> tuple[dict, dict]:
 def peak_memory_mb() -> int:
     """The most resident memory this process has held so far, in MiB (Linux reports KiB)."""
     return round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)
+
+
+# ----------------------------------------------------------------------------- the trainers' files and flags
+UNREADABLE = (OSError, EOFError, RuntimeError, KeyError, IndexError, TypeError, ValueError, AttributeError,
+              pickle.UnpicklingError, zipfile.BadZipFile)  # what torch.load of a foreign or truncated file raises
+
+
+def reason(e: BaseException) -> str:
+    """Why a file was refused, in one line: the error's first line, or what torch's weights-only refusal means."""
+    if isinstance(e, pickle.UnpicklingError):
+        return "not a torch file of tensors and plain values"
+    return (str(e).splitlines() or [type(e).__name__])[0]
+
+
+def read_torch(path: str, what: str) -> Any:
+    """torch.load of tensors and plain values only, onto the CPU; a truncated or foreign file is a one-line
+    ValueError saying it is not `what`."""
+    import torch  # only the trainers' files need it
+
+    try:
+        with warnings.catch_warnings():  # torch warns about pickles it then refuses: the error says it all
+            warnings.simplefilter("ignore")
+            return torch.load(path, map_location="cpu", weights_only=True)
+    except UNREADABLE as e:
+        raise ValueError(f"{path}: not a {what} ({reason(e)})") from None
+
+
+def save_torch(path: str, state: dict, kind: str = "run", flag: str = "checkpoint") -> None:
+    """torch.save through staged_output: a crash or a full disk never leaves half a file."""
+    import torch
+
+    with staged_output(path, kind, overwrite=True, flag=flag) as tmp:
+        torch.save(state, tmp)
+
+
+def shapes_differ(here: dict, held: dict) -> str:
+    """The first three differences between two {name: shape} records, in one line ("" when they agree)."""
+    differ = sorted([f"{k} {held[k]} in the file, {here[k]} here" for k in here.keys() & held.keys()
+                     if here[k] != held[k]] + [f"{k} only here" for k in here.keys() - held.keys()]
+                    + [f"{k} only in the file" for k in held.keys() - here.keys()])
+    return "; ".join(differ[:3]) + (f" and {len(differ) - 3} more" if len(differ) > 3 else "")
+
+
+def check_ranges(args: Any, at_least: dict[str, float], unit: tuple = (), positive: tuple = (),
+                 nonnegative: tuple = ()) -> None:
+    """A script's numeric flags: every float finite, each of `at_least` at least its number, `unit` in [0, 1],
+    `positive` above 0 and `nonnegative` at least 0 (a flag left at None is not checked); else a one-line error."""
+    def flag(name):
+        return f"--{name.replace('_', '-')}"
+
+    for name, value in vars(args).items():
+        if isinstance(value, float) and not math.isfinite(value):
+            raise ValueError(f"{flag(name)} must be a finite number, got {value}")
+    rules = [(n, lambda v, least=least: v >= least, f">= {least}") for n, least in at_least.items()]
+    rules += [(n, lambda v: 0.0 <= v <= 1.0, "in [0, 1]") for n in unit]
+    rules += [(n, lambda v: v > 0, "> 0") for n in positive] + [(n, lambda v: v >= 0, ">= 0") for n in nonnegative]
+    for name, ok, wanted in rules:
+        if getattr(args, name) is not None and not ok(getattr(args, name)):
+            raise ValueError(f"{flag(name)} must be {wanted}, got {getattr(args, name)}")
+
+
+def resumed_flags(args: Any, saved: dict, source: str, own: tuple, replaceable: tuple = ()) -> dict:
+    """The flags a resumed run keeps from `saved` (its checkpoint's): one left at its default takes the saved value;
+    one set otherwise must agree with it (a one-line error), but for `own` (how a run goes: the command line's) and
+    `replaceable` (the command line's when given)."""
+    defaults = {f.name: f.default for f in dataclasses.fields(args)}
+    kept = {}
+    for name, value in saved.items():
+        if name not in defaults or name in own or getattr(args, name) == value:
+            continue
+        if getattr(args, name) == defaults[name]:
+            kept[name] = value
+        elif name not in replaceable:
+            raise ValueError(f"--{name.replace('_', '-')} {getattr(args, name)} contradicts {source} "
+                             f"({name.replace('_', ' ')} {value}): a resumed run keeps its flags "
+                             f"(--{', --'.join(r.replace('_', '-') for r in replaceable)} may change)")
+    return kept
 
 
 # ----------------------------------------------------------------------------- maps on disk
@@ -2699,6 +2778,43 @@ def world_paths(cells: list, steps: np.ndarray, active: np.ndarray) -> list[np.n
     return [path[:t + 1, b][:, active[b]].astype(np.int64) for b, t in enumerate(steps)]
 
 
+def stuck(since_new: np.ndarray, moved: np.ndarray, size: np.ndarray) -> np.ndarray:
+    """§6.4.2.4 conditions 3-4, per agent: no new cell in more than M steps (M = map edge), or
+    none and at most two cells of displacement in the last five steps."""
+    return (since_new > size) | ((since_new >= 5) & (moved <= 2))
+
+
+class StuckWatch:
+    """Who is stuck (`stuck`) among a core's agents, and §6.5.2.1's fallback: an agent that gets stuck hands over to
+    the heuristic for as many new cells as it has been stuck this episode. step() after every core.step, restart()
+    for worlds that start a new episode."""
+
+    def __init__(self, core: GridWorldCore):
+        self.since_new, self.times_stuck, self.owed = (np.zeros((core.B, core.N), np.int64) for _ in range(3))
+        self.history = [core.agent_cells()] * 6  # cells at t-5 .. t
+
+    def stuck(self, core: GridWorldCore) -> np.ndarray:
+        moved = np.abs(core.agent_cells() - self.history[0]).sum(-1)
+        return stuck(self.since_new, moved, core.hw.max(1)[:, None])
+
+    def hand_over(self, core: GridWorldCore, working: np.ndarray) -> np.ndarray:
+        """The working agents (B, N) the heuristic moves now."""
+        now_stuck = self.stuck(core) & working & (self.owed == 0)
+        self.times_stuck += now_stuck
+        self.owed = np.where(now_stuck, self.times_stuck, self.owed)
+        return (self.owed > 0) & working
+
+    def step(self, core: GridWorldCore, new: np.ndarray) -> None:
+        self.since_new = np.where(new, 0, self.since_new + 1)
+        self.owed = np.maximum(self.owed - new, 0)
+        self.history = self.history[1:] + [core.agent_cells()]
+
+    def restart(self, core: GridWorldCore, worlds: np.ndarray) -> None:
+        self.since_new[worlds] = self.times_stuck[worlds] = self.owed[worlds] = 0
+        for h in self.history:
+            h[worlds] = core.agent_cells()[worlds]
+
+
 # ----------------------------------------------------------------------------- spaces
 def agent_observation_space(cfg: EnvConfig) -> spaces.Space:
     """One agent's observation space under `cfg`: the shapes a trainer sizes its network by."""
@@ -2720,6 +2836,30 @@ def frame_features(obs: dict[str, np.ndarray]) -> np.ndarray:
     last_action, then out_of_bounds flattened row by row and divided by OUT_OF_BOUNDS_SCALE."""
     oob = obs["out_of_bounds"]
     return np.concatenate([obs["last_action"], oob.reshape(*oob.shape[:-2], -1) / np.float32(OUT_OF_BOUNDS_SCALE)], -1)
+
+
+def packed_frame_bytes(channels: int, view: int) -> int:
+    """Bytes of one deep map frame under pack_frames."""
+    return (channels * view * view + 7) // 8 + 4 * channels * view
+
+
+def pack_frames(maps: np.ndarray) -> np.ndarray:
+    """Deep map frames (n, C, V, V) uint8 as packed_frame_bytes each: every cell as one bit (a deep map is 0 or 255)
+    but for rows and columns 1 and V - 2, which carry eq. 6.5's compressed out-of-bounds lines and are kept raw."""
+    V = maps.shape[-1]
+    edges = [maps[:, :, 1], maps[:, :, V - 2], maps[:, :, :, 1], maps[:, :, :, V - 2]]
+    return np.concatenate([np.packbits((maps > 0).reshape(len(maps), -1), axis=1),
+                           *(e.reshape(len(maps), -1) for e in edges)], 1)
+
+
+def unpack_frames(packed: np.ndarray, channels: int, view: int) -> np.ndarray:
+    """pack_frames' inverse: (n, C, V, V) uint8."""
+    C, V, n = channels, view, len(packed)
+    bits = (C * V * V + 7) // 8
+    maps = np.unpackbits(packed[:, :bits], axis=1, count=C * V * V).reshape(n, C, V, V) * np.uint8(255)
+    edges = packed[:, bits:].reshape(n, 4, C, V)
+    maps[:, :, 1], maps[:, :, V - 2], maps[:, :, :, 1], maps[:, :, :, V - 2] = edges.transpose(1, 0, 2, 3)
+    return maps
 
 
 def _make_config(config: EnvConfig | dict | None, kwargs: dict) -> EnvConfig:

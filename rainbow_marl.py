@@ -16,14 +16,11 @@ import datetime
 import importlib.util
 import math
 import os
-import pickle
 import random
 import signal
 import sys
 import time
-import warnings
-import zipfile
-from dataclasses import asdict, dataclass, fields, replace
+from dataclasses import asdict, dataclass, replace
 from typing import Literal
 
 import numpy as np
@@ -196,8 +193,6 @@ RUN_FLAGS = ("exp_name", "run_name", "resume", "threads", "cuda", "torch_determi
              "wandb_entity", "quiet", "capture_video", "total_steps", "time_limit", "eval_every", "eval_maps",
              "save_every", "curve_every", "export", "overwrite", "init_from")  # how a run goes, not what it learns
 CHECKPOINT_KEYS = ("model", "optimizer", "global_step", "stage", "wall", "numpy_rng", "torch_rng")
-UNREADABLE = (OSError, EOFError, RuntimeError, KeyError, IndexError, TypeError, ValueError, AttributeError,
-              pickle.UnpicklingError, zipfile.BadZipFile)  # what torch.load of a foreign or truncated file raises
 
 
 # ----------------------------------------------------------------------------- the network
@@ -272,8 +267,7 @@ class QNetwork(Dueling):
         self.add_streams(n_conv + 1 + frames * EXTRAS + HINTS * hint, hidden, sigma0)  # battery, extras, hint
 
     def network(self) -> dict:
-        """What a saved copy needs to be rebuilt and fed: network kind, frames, hidden width, view, extras,
-        observation kind, whether it takes the heuristic's move (hint) and with which ties (far_first)."""
+        """What a saved copy needs to be rebuilt and fed (hint: it takes the heuristic's move; far_first: its ties)."""
         return {"network": "fig6.8", "frames": self.frames, "hidden": self.hidden, "view": self.view,
                 "extras": EXTRAS, "observation": "deep", "hint": self.hint, "far_first": self.far_first}
 
@@ -311,8 +305,7 @@ class CompactQNetwork(Dueling):
         self.register_buffer("scale_major", order, persistent=False)  # frame-major channels -> scale-major
 
     def network(self) -> dict:
-        """What a saved copy needs to be rebuilt and fed (QNetwork.network's keys plus the conv width and the
-        multiscale settings)."""
+        """QNetwork.network's record plus the conv width and the multiscale settings."""
         return {"network": "compact", "frames": self.frames, "hidden": self.hidden, "conv_width": self.conv_width,
                 "view": self.view, "extras": EXTRAS, "observation": "multiscale", "scales": self.scales,
                 "scale_factor": self.scale_factor, "scale_view": self.scale_view, "hint": self.hint,
@@ -336,8 +329,7 @@ def build_network(spec: dict, sigma0: float) -> nn.Module:
 
 
 def observation_settings(spec: dict) -> dict:
-    """The EnvConfig fields of the observation a network needs, from its spec (a network() record, network_of's,
-    or a run's flags as a dict): {"observation": "deep"}, or multiscale with its scales."""
+    """The EnvConfig fields of the observation a network's spec (network(), network_of's, or flags) needs."""
     if spec.get("network", "fig6.8") == "fig6.8":
         return {"observation": "deep", **DEEP}
     return {"observation": "multiscale", **{k: spec[k] for k in SCALE_KEYS}}
@@ -395,11 +387,10 @@ class SumTree:
 
 
 class Replay:
-    """One compact frame per step in a ring segment per stream (a world, or one agent of a world), so stacks
-    and next states are neighbouring slots of the same stream. A frame of the deep observation: the map
-    bit-packed (841 bytes for 4x41x41) plus the four compressed edge lines raw, out-of-bounds, last action and
-    battery; with `channels` (the multiscale observation, whose block means are not binary) the map is kept as
-    it is, uint8 (1,815 bytes for 15x11x11). With `hint` also the heuristic's move at each frame."""
+    """One compact frame per step in a ring segment per stream (a world, or one agent of a world), so stacks and next
+    states are neighbouring slots of the same stream: a deep map as gridworld.pack_frames (1,497 bytes for 4x41x41),
+    with `channels` (the multiscale observation, whose block means are not binary) the map as it is (1,815 bytes for
+    15x11x11); its out-of-bounds, last action and battery; with `hint` the heuristic's move."""
 
     def __init__(self, capacity: int, worlds: int, view: int, frames: int, n_step: int, gamma: float,
                  alpha: float, channels: int | None = None, hint: bool = False):
@@ -409,11 +400,8 @@ class Replay:
         self.n_step, self.gamma, self.alpha = n_step, gamma, alpha
         self.C, self.packed = channels or CHANNELS, channels is None
         size = self.cap * worlds
-        if self.packed:
-            self.bits = np.zeros((size, (CHANNELS * view * view + 7) // 8), np.uint8)
-            self.edges = np.zeros((size, 4, CHANNELS, view), np.uint8)  # rows 1, V-2 and cols 1, V-2
-        else:
-            self.maps = np.zeros((size, channels, view, view), np.uint8)
+        frame = gridworld.packed_frame_bytes(CHANNELS, view) if self.packed else channels * view * view
+        self.frames = np.zeros((size, frame), np.uint8)
         self.oob = np.zeros((size, *OUT_OF_BOUNDS), np.float16)
         self.last = np.zeros(size, np.int8)
         self.battery = np.zeros(size, np.float16)
@@ -432,7 +420,7 @@ class Replay:
     @staticmethod
     def transition_bytes(view: int, channels: int | None = None, hint: bool = False) -> int:
         """Bytes a transition takes (frame, scalars, sum-tree leaf), known before anything is allocated."""
-        frame = (CHANNELS * view * view + 7) // 8 + 4 * CHANNELS * view if channels is None else channels * view * view
+        frame = gridworld.packed_frame_bytes(CHANNELS, view) if channels is None else channels * view * view
         scalars = 2 * int(np.prod(OUT_OF_BOUNDS)) + 1 + 2 + 1 + 1 + 4 + 1 + 1 + 8  # oob .. age, as __init__ has them
         return frame + scalars + 16 + hint  # + the sum-tree's float64 leaf and its parent's share
 
@@ -443,15 +431,7 @@ class Replay:
         """Write the current frame of each stream; returns the slots written."""
         slot = worlds * self.cap + self.pointer[worlds]
         maps = obs["map"]
-        if self.packed:
-            self.bits[slot] = np.packbits((maps > 0).reshape(len(slot), -1), axis=1)
-            V = self.V
-            self.edges[slot, :, 0] = maps[:, :, 1]
-            self.edges[slot, :, 1] = maps[:, :, V - 2]
-            self.edges[slot, :, 2] = maps[:, :, :, 1]
-            self.edges[slot, :, 3] = maps[:, :, :, V - 2]
-        else:
-            self.maps[slot] = maps
+        self.frames[slot] = gridworld.pack_frames(maps) if self.packed else maps.reshape(len(slot), -1)
         self.oob[slot] = obs["out_of_bounds"]
         self.last[slot] = obs["last_action"].argmax(1)
         self.battery[slot] = obs["battery"][:, 0]
@@ -482,12 +462,8 @@ class Replay:
         back = np.minimum(self.age[slot][:, None], np.arange(k - 1, -1, -1))  # stay in the episode
         frames = base[:, None] + (pos[:, None] - back) % self.cap  # (n, k) oldest first
         flat = frames.ravel()
-        if self.packed:
-            maps = np.unpackbits(self.bits[flat], axis=1, count=CHANNELS * V * V).reshape(-1, CHANNELS, V, V) * np.uint8(255)
-            maps[:, :, 1], maps[:, :, V - 2] = self.edges[flat, :, 0], self.edges[flat, :, 1]
-            maps[:, :, :, 1], maps[:, :, :, V - 2] = self.edges[flat, :, 2], self.edges[flat, :, 3]
-        else:
-            maps = self.maps[flat]
+        maps = (gridworld.unpack_frames(self.frames[flat], CHANNELS, V) if self.packed
+                else self.frames[flat].reshape(-1, self.C, V, V))
         last = np.eye(LAST_ACTIONS, dtype=np.float32)[self.last[flat]]
         oob = self.oob[flat].astype(np.float32).reshape(len(flat), -1) / OUT_OF_BOUNDS_SCALE
         extras = [self.battery[slot].astype(np.float32)[:, None], np.concatenate([last, oob], 1).reshape(len(slot), -1)]
@@ -536,8 +512,6 @@ class Replay:
         self.tree.update(slot, priority ** self.alpha)
 
 
-
-
 # ----------------------------------------------------------------------------- acting and learning
 class Stacker:
     """The last k frames of every stream (a world, or one agent of a world), for acting."""
@@ -583,12 +557,6 @@ def to_torch(maps: np.ndarray, extras: np.ndarray, device: torch.device | None =
     if device is None or device.type == "cpu":
         return maps, extras
     return maps.to(device, non_blocking=True), extras.to(device, non_blocking=True)
-
-
-def stuck(since_new: np.ndarray, moved: np.ndarray, size: np.ndarray) -> np.ndarray:
-    """§6.4.2.4 conditions 3-4, per agent: no new cell in more than M steps (M = map edge), or
-    none and at most two cells of displacement in the last five steps."""
-    return (since_new > size) | ((since_new >= 5) & (moved <= 2))
 
 
 def large_margin_loss(q_all: torch.Tensor, label: torch.Tensor, margin: float) -> torch.Tensor:
@@ -652,38 +620,20 @@ def diagnostics_of(q: nn.Module, maps: torch.Tensor, extras: torch.Tensor, q_all
 
 
 # ----------------------------------------------------------------------------- files
-def save_checkpoint(path: str, state: dict, kind: str = "run", flag: str = "checkpoint") -> None:
-    """torch.save through gridworld's staged write: a crash or a full disk never leaves half a file."""
-    with gridworld.staged_output(path, kind, overwrite=True, flag=flag) as tmp:
-        torch.save(state, tmp)
-
-
 def export(q: QNetwork, args: Args, info: dict) -> None:
     """Deployable weights at args.export (the noisy layers' means, fp16, with the network's record) and beside them a
     JSON of the flags, the network and `info` (steps, provenance, parent model)."""
     weights = {k: v.cpu().half() for k, v in q.state_dict().items() if "sigma" not in k and "eps" not in k}
-    save_checkpoint(args.export, {"weights": weights, **q.network()}, "model", "--export")
+    gridworld.save_torch(args.export, {"weights": weights, **q.network()}, "model", "--export")
     gridworld.write_json(os.path.splitext(args.export)[0] + ".json", {"args": asdict(args), "network": q.network(),
                                                                         **info}, "model", True, "--export")
-
-
-def reason(e: BaseException) -> str:
-    """Why a file was refused, in one line: the error's first line, or what torch's weights-only refusal means."""
-    if isinstance(e, pickle.UnpicklingError):
-        return "not a torch file of tensors and plain values"
-    return (str(e).splitlines() or [type(e).__name__])[0]
 
 
 def read_model(path: str) -> dict:
     """A saved network (an export or a checkpoint); a missing, truncated or foreign file is a one-line ValueError."""
     if not os.path.exists(path):
         raise ValueError(f"{path}: no such checkpoint")
-    try:
-        with warnings.catch_warnings():  # torch warns about pickles it then refuses: the error says it all
-            warnings.simplefilter("ignore")
-            blob = torch.load(path, map_location="cpu", weights_only=True)
-    except UNREADABLE as e:
-        raise ValueError(f"{path}: not a rainbow_cpp / rainbow_marl model ({reason(e)})") from None
+    blob = gridworld.read_torch(path, "rainbow_cpp / rainbow_marl model")
     if not isinstance(blob, dict) or not isinstance(blob.get("weights", blob.get("model")), dict):
         raise ValueError(f"{path}: not a rainbow_cpp / rainbow_marl model (no weights in it)")
     return blob
@@ -720,19 +670,15 @@ def policy_from(blob: dict, path: str) -> QNetwork:
     spec = network_of(blob, path)
     q = build_network(spec, 0.0)
     weights = blob.get("weights", blob.get("model"))
-    mean = {k: tuple(v.shape) for k, v in q.state_dict().items() if "sigma" not in k and "eps" not in k}
-    held = {k: tuple(v.shape) for k, v in weights.items() if "sigma" not in k and "eps" not in k}
-    differ = sorted([f"{k} {held[k]} in the file, {mean[k]} here" for k in mean.keys() & held.keys() if mean[k] != held[k]]
-                    + [f"{k} only here" for k in mean.keys() - held.keys()]
-                    + [f"{k} only in the file" for k in held.keys() - mean.keys()])
+    differ = gridworld.shapes_differ(*({k: tuple(v.shape) for k, v in w.items() if "sigma" not in k and "eps" not in k}
+                                       for w in (q.state_dict(), weights)))
     if differ:
-        raise ValueError(f"{path}: weights do not match {SCRIPT}.py's network ({'; '.join(differ[:3])}"
-                         f"{f' and {len(differ) - 3} more' if len(differ) > 3 else ''}); a model of a changed copy of "
+        raise ValueError(f"{path}: weights do not match {SCRIPT}.py's network ({differ}); a model of a changed copy of "
                          "the trainer: evaluate.py --trainer COPY.py")
     try:
         q.load_state_dict({k: v.float() for k, v in weights.items()}, strict=False)
-    except UNREADABLE as e:
-        raise ValueError(f"{path}: weights do not match this network ({reason(e)})") from None
+    except gridworld.UNREADABLE as e:
+        raise ValueError(f"{path}: weights do not match this network ({gridworld.reason(e)})") from None
     if not all(torch.isfinite(v).all() for v in q.state_dict().values()):
         raise ValueError(f"{path}: its weights are not finite (the run that made it diverged)")
     q.reset_noise(False)
@@ -761,55 +707,31 @@ def load_checkpoint(path: str) -> dict:
 def check_flags(args: Args) -> None:
     """The flags both trainers share: a count or a chance out of range, a number that is not finite, more threads than
     cores or an export outside models/ and runs/ is a one-line error."""
-    for name, value in vars(args).items():
-        if isinstance(value, float) and not math.isfinite(value):
-            raise ValueError(f"--{name.replace('_', '-')} must be a finite number, got {value}")
+    gridworld.check_ranges(args, {"seed": 0, "total_steps": 0, "num_envs": 1, "buffer_size": 1, "batch_size": 1,
+                                  "learning_starts": 0, "demonstration_steps": 0, "n_step": 1, "challenging_size": 1,
+                                  "eval_every": 0, "eval_maps": 1, "save_every": 0, "threads": 0, "hidden": 1,
+                                  "frame_stack": 1, "conv_width": 1, **{k: 1 for k in SCALE_KEYS}},
+                           unit=("challenging", "imitation", "gamma", "tau", "beta_start"),
+                           positive=("stage_steps_scale", "learning_rate", "adam_eps"),
+                           nonnegative=("replay_ratio", "alpha", "sigma0", "margin_loss", "margin", "max_grad_norm",
+                                        "time_limit", "td_weight"))
     if args.threads > (os.cpu_count() or 1):
         raise ValueError(f"--threads {args.threads}: this machine has {os.cpu_count()} cores")
     if args.track and importlib.util.find_spec("wandb") is None:
         raise ValueError("--track needs Weights & Biases: pip install wandb")
-    for name, least in (("seed", 0), ("total_steps", 0), ("num_envs", 1), ("buffer_size", 1), ("batch_size", 1),
-                        ("learning_starts", 0), ("demonstration_steps", 0), ("n_step", 1), ("challenging_size", 1),
-                        ("eval_every", 0), ("eval_maps", 1), ("save_every", 0), ("threads", 0)):
-        if getattr(args, name) < least:
-            raise ValueError(f"--{name.replace('_', '-')} must be >= {least}, got {getattr(args, name)}")
     if args.network is not None and args.network not in NETWORKS:
         raise ValueError(f"--network must be one of {', '.join(NETWORKS)}, got {args.network!r}")
-    for name in ("hidden", "frame_stack", "conv_width", *SCALE_KEYS):
-        if getattr(args, name) is not None and getattr(args, name) < 1:
-            raise ValueError(f"--{name.replace('_', '-')} must be >= 1, got {getattr(args, name)}")
-    for name in ("challenging", "imitation", "gamma", "tau", "beta_start"):
-        if not 0.0 <= getattr(args, name) <= 1.0:
-            raise ValueError(f"--{name.replace('_', '-')} must be in [0, 1], got {getattr(args, name)}")
-    for name in ("stage_steps_scale", "learning_rate", "adam_eps"):
-        if getattr(args, name) is not None and not getattr(args, name) > 0:
-            raise ValueError(f"--{name.replace('_', '-')} must be > 0, got {getattr(args, name)}")
-    for name in ("replay_ratio", "alpha", "sigma0", "margin_loss", "margin", "max_grad_norm", "time_limit",
-                 "td_weight"):
-        if not getattr(args, name) >= 0:
-            raise ValueError(f"--{name.replace('_', '-')} must be >= 0, got {getattr(args, name)}")
     if args.export:  # before training, not at the first save
         gridworld.check_export(args.export, f"{SCRIPT}.py")
 
 
 def settle_flags(args: Args) -> Args:
-    """The flags a run trains with. On --resume the run's own, from its checkpoint: a flag left at its default takes the
-    run's value and one set otherwise must agree with it, but for --learning-rate (which replaces the run's rate) and
-    RUN_FLAGS (the command line's). A rate set nowhere is LEARNING_RATE."""
-    kept = {}
+    """The flags a run trains with: on --resume the run's own (gridworld.resumed_flags; --learning-rate replaces the
+    run's rate); a rate set nowhere is LEARNING_RATE."""
     if args.resume:
         path = os.path.join("runs", gridworld.run_folder(args.run_name, args.exp_name, args.seed, True), "checkpoint.pt")
-        defaults = {f.name: f.default for f in fields(Args)}
-        for name, value in (load_checkpoint(path).get("args") or {}).items():
-            if name not in defaults or name in RUN_FLAGS or getattr(args, name) == value:
-                continue
-            given = getattr(args, name)
-            if given == defaults[name]:
-                kept[name] = value
-            elif name != "learning_rate":
-                raise ValueError(f"--{name.replace('_', '-')} {given} contradicts {path} ({name.replace('_', ' ')} "
-                                 f"{value}): a resumed run keeps its flags (--learning-rate may change)")
-    args = replace(args, **kept)
+        saved = load_checkpoint(path).get("args") or {}
+        args = replace(args, **gridworld.resumed_flags(args, saved, path, RUN_FLAGS, ("learning_rate",)))
     return args if args.learning_rate is not None else replace(args, learning_rate=LEARNING_RATE)
 
 
@@ -848,22 +770,15 @@ def observed(stages: list[gridworld.EnvConfig], args: Args) -> list[gridworld.En
     return out
 
 
-def seed_everything(seed: int, threads: int, deterministic: bool = True) -> np.random.Generator:
-    """CleanRL's seeding and torch's CPU threads (0: its default); returns the run's numpy generator."""
-    random.seed(seed)
-    torch.manual_seed(seed)
-    torch.backends.cudnn.deterministic = deterministic
-    if threads:
-        torch.set_num_threads(threads)
-    return np.random.default_rng(seed)
-
-
 def start_run(args: Args, n_stages: int) -> tuple:
     """Seeding, the run folder, the networks and the optimizer, from the checkpoint resumed or the model warm started
-    from; only reads, so every bad file or flag is a ValueError before anything is written. Returns (args with every
-    default filled in, run folder, online and target networks, optimizer, numpy generator, (global_step, stage index,
-    wall seconds, the learning curve so far), the parent's lineage)."""
-    rng = seed_everything(args.seed, args.threads, args.torch_deterministic)
+    from; only reads, so every bad file or flag is a ValueError before anything is written."""
+    random.seed(args.seed)  # CleanRL's seeding
+    torch.manual_seed(args.seed)
+    torch.backends.cudnn.deterministic = args.torch_deterministic
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    rng = np.random.default_rng(args.seed)
     run_name = gridworld.run_folder(args.run_name, args.exp_name, args.seed, args.resume)
     run_dir = os.path.join("runs", run_name)
     checkpoint = os.path.join(run_dir, "checkpoint.pt")
@@ -885,7 +800,8 @@ def start_run(args: Args, n_stages: int) -> tuple:
         with torch.device("meta"):  # its size before any memory is taken: online, target and Adam's two moments
             weights = sum(w.numel() for w in build_network(spec, args.sigma0).parameters())
     except RuntimeError as e:  # a shape past what torch can describe
-        raise ValueError(f"the network cannot be built ({reason(e)}); see --hidden, --conv-width, --frame-stack") from None
+        raise ValueError(f"the network cannot be built ({gridworld.reason(e)}); see --hidden, --conv-width, "
+                         "--frame-stack") from None
     gridworld.fits_in_memory(16 * weights, f"the network ({weights:,} weights; --hidden, --conv-width, --frame-stack)")
     q, target = (build_network(spec, args.sigma0).to(device) for _ in range(2))
     optimizer = torch.optim.Adam(q.parameters(), lr=args.learning_rate, eps=args.adam_eps,
@@ -901,8 +817,8 @@ def start_run(args: Args, n_stages: int) -> tuple:
                 group["lr"] = args.learning_rate
             rng.bit_generator.state = state["numpy_rng"]
             torch.set_rng_state(state["torch_rng"])
-        except UNREADABLE as e:
-            raise ValueError(f"{checkpoint}: does not fit this run ({reason(e)})") from None
+        except gridworld.UNREADABLE as e:
+            raise ValueError(f"{checkpoint}: does not fit this run ({gridworld.reason(e)})") from None
         progress = (state["global_step"], state["stage"], state["wall"], list(state.get("curve", [])))
         parent, target_state = state.get("parent"), state.get("target")
     elif warm is not None:  # transfer (§7.4.2.2): the mean weights, fresh noise
@@ -912,8 +828,8 @@ def start_run(args: Args, n_stages: int) -> tuple:
         parent = gridworld.lineage(args.init_from)
     try:
         target.load_state_dict(target_state or q.state_dict())
-    except UNREADABLE as e:
-        raise ValueError(f"{checkpoint}: its target network does not fit this run ({reason(e)})") from None
+    except gridworld.UNREADABLE as e:
+        raise ValueError(f"{checkpoint}: its target network does not fit this run ({gridworld.reason(e)})") from None
     return args, run_dir, q, target, optimizer, rng, progress, parent
 
 
@@ -932,7 +848,7 @@ def save_run(run_dir: str, q: QNetwork, target: QNetwork, optimizer: torch.optim
     if not all(torch.isfinite(v).all() for v in q.state_dict().values()):
         raise ValueError(f"the network's weights are not finite at step {global_step:,} (training diverged); "
                          f"{run_dir} keeps its last checkpoint and export")
-    save_checkpoint(os.path.join(run_dir, "checkpoint.pt"), {
+    gridworld.save_torch(os.path.join(run_dir, "checkpoint.pt"), {
         "model": q.state_dict(), "optimizer": optimizer.state_dict(), "global_step": global_step,
         "stage": stage_index, "wall": wall, "args": asdict(args), "script": SCRIPT, "numpy_rng": rng.bit_generator.state,
         "torch_rng": torch.get_rng_state(), "parent": parent, "target": target.state_dict(), "curve": curve or [],
@@ -1035,9 +951,8 @@ def evaluate_policy(q: QNetwork, scenarios: list, frames: int, sensor: str = "fu
     stack.push(observe(core, hint, dead_ends_first, far_first), np.ones(B * N, bool))
     done, truncated, faulty = (np.zeros(B, bool) for _ in range(3))
     unreachable = np.zeros(B, np.int64)  # points of interest behind the frozen agent, counted when it freezes
-    since_new, times_stuck, owed = (np.zeros((B, N), np.int64) for _ in range(3))
+    watch = gridworld.StuckWatch(core)
     steps, used = np.zeros(B, np.int64), np.zeros(B, np.int64)  # each world's own, not the waits after its end
-    history = [core.agent_cells()] * 6  # cells at t-5 .. t
     cells = [core.agent_cells()]
     q.reset_noise(False)
     with torch.no_grad():
@@ -1049,12 +964,8 @@ def evaluate_policy(q: QNetwork, scenarios: list, frames: int, sensor: str = "fu
             action[acting] = q(*to_torch(maps[acting], extras[acting], device)).argmax(1).cpu().numpy()
             action = action.reshape(B, N)
             if heuristic:
-                moved = np.abs(core.agent_cells() - history[0]).sum(-1)
-                now_stuck = stuck(since_new, moved, core.hw.max(1)[:, None]) & working & (owed == 0)
-                times_stuck += now_stuck
-                owed = np.where(now_stuck, times_stuck, owed)
                 endgame = (core.remaining <= working.sum(1))[:, None]
-                fallback = ((owed > 0) | endgame) & working
+                fallback = (watch.hand_over(core, working) | endgame) & working
                 if fallback.any():
                     heuristic_moves = gridworld.heuristic_actions(core, random_ties, dead_ends_first, far_first)
                     action = np.where(fallback, heuristic_moves, action)
@@ -1063,9 +974,7 @@ def evaluate_policy(q: QNetwork, scenarios: list, frames: int, sensor: str = "fu
                 action = np.where(rng.random((B, N)) < action_loss, gridworld.WAIT, action)
             ev = core.step(np.where(done[:, None], gridworld.WAIT, action))
             steps += ~done
-            since_new = np.where(ev["new"], 0, since_new + 1)
-            owed = np.maximum(owed - ev["new"], 0)
-            history = history[1:] + [core.agent_cells()]
+            watch.step(core, ev["new"])
             if trajectories is not None:
                 cells.append(core.agent_cells())
             truncated |= ev["truncated"] & ~done
@@ -1151,8 +1060,7 @@ def main(args: Args) -> None:
             slot[live] = replay.add_frames(live, pick(obs, live), np.zeros(len(live), np.int64),
                                            np.zeros(len(live), bool))
             age = np.zeros(B, np.int64)
-            since_new = np.zeros((B, N), np.int64)
-            history = [core.agent_cells()] * 6  # cells at t-5 .. t
+            watch = gridworld.StuckWatch(core)  # §6.4.2.4 conditions 3-4
             demonstrations_end = max(args.learning_starts, args.demonstration_steps)
             teacher = np.full(B, global_step < demonstrations_end)  # §6.4.2.4 condition 1
             continued = np.zeros(B, bool)  # truncated and continued by the heuristic (condition 2)
@@ -1166,9 +1074,8 @@ def main(args: Args) -> None:
         with torch.no_grad():
             maps, extras = stack.get()
             action[live] = q(*to_torch(maps[live], extras[live], device)).argmax(1).cpu().numpy()
-        moved = np.abs(core.agent_cells() - history[0]).sum(-1)
         endgame = (core.remaining <= core.active.sum(1))[:, None]  # no more cells than agents: all hand over
-        teach = ((teacher | continued)[:, None] | endgame | stuck(since_new, moved, core.hw.max(1)[:, None]))
+        teach = (teacher | continued)[:, None] | endgame | watch.stuck(core)
         teach = (teach & (rng.random((B, N)) < args.imitation)).ravel()
         label = None
         if teach.any() or args.margin_loss:  # the hint is this heuristic's move when ties are not random
@@ -1187,8 +1094,7 @@ def main(args: Args) -> None:
                               np.repeat(terminated | (truncated & ~args.peb), N)[live],
                               label[live] if args.margin_loss else None)
         returns += ev["reward"]
-        since_new = np.where(ev["new"], 0, since_new + 1)
-        history = history[1:] + [core.agent_cells()]
+        watch.step(core, ev["new"])
         global_step += B
         bar.update(B)
         carry_on = truncated & args.partial_reset
@@ -1228,11 +1134,10 @@ def main(args: Args) -> None:
             restart = restart.ravel()
             new = np.flatnonzero(restart & core.active.ravel())
             slot[new] = replay.add_frames(new, pick(obs, new), np.zeros(len(new), np.int64), np.zeros(len(new), bool))
-            age[w] = since_new[w] = returns[w] = 0
+            age[w] = returns[w] = 0
             continued[w] = False
             teacher[w] = global_step < demonstrations_end
-            for h in history:
-                h[w] = core.agent_cells()[w]
+            watch.restart(core, w)
         # TRY NOT TO MODIFY: CRUCIAL step easy to overlook
         stack.push(obs, restart)
 

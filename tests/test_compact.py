@@ -155,7 +155,7 @@ def test_the_replay_keeps_multiscale_frames_as_they_are():
     channels, view = rc.frame_shape(observation)
     core = core_for(observation, worlds=2, seed=3)
     replay = rc.Replay(2 * 64, 2, view, 3, 1, 0.9, 0.5, channels)
-    assert not replay.packed and replay.maps.dtype == np.uint8
+    assert not replay.packed and replay.frames.dtype == np.uint8
     assert replay.bytes_per_transition() == 15 * 11 * 11 + 8 * 2 + 1 + 2 + 1 + 1 + 4 + 1 + 1 + 8 + 16
     stack = rc.Stacker(2, 3, view, channels)
     obs = rc.observe(core)

@@ -126,7 +126,7 @@ def test_rainbow_policy_end_to_end(tmp_path):
     import rainbow_cpp
     q = rainbow_cpp.QNetwork(3, 41, 16, 0.5)
     model = tmp_path / "tiny.pt"
-    rainbow_cpp.save_checkpoint(str(model), {"weights": {k: v.half() for k, v in q.state_dict().items()
+    gw.save_torch(str(model), {"weights": {k: v.half() for k, v in q.state_dict().items()
                                                          if "sigma" not in k and "eps" not in k},
                                              "frames": 3, "hidden": 16})
     kw = dict(policy="rainbow", checkpoint=str(model), dataset=str(ROOT / "maps/cpp_eval.npz"), limit=3)

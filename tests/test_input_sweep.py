@@ -181,8 +181,7 @@ def test_bad_input_is_refused_in_one_line_or_accepted(cli, field, value, tmp_pat
 @pytest.mark.parametrize("channels, hint", [(None, False), (15, True)])
 def test_the_replay_memory_estimate_is_what_it_allocates(t, channels, hint):
     r = t.Replay(64, 4, 11, 2, 3, 0.9, 0.5, channels, hint)
-    arrays = ([r.bits, r.edges] if channels is None else [r.maps]) + [r.oob, r.last, r.battery, r.action, r.label,
-                                                                      r.reward, r.terminal, r.final, r.age]
+    arrays = [r.frames, r.oob, r.last, r.battery, r.action, r.label, r.reward, r.terminal, r.final, r.age]
     assert r.bytes_per_transition() == sum(a.nbytes for a in arrays + [r.hint] * hint) // 64 + 16
     with pytest.raises(ValueError, match=r"^--buffer-size 1,000,000,000,000: the replay memory needs [\d,.]+ GiB, this"):
         t.Replay(10**12, 4, 11, 2, 3, 0.9, 0.5, channels, hint)

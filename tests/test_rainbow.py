@@ -768,7 +768,7 @@ def test_stuck_conditions_by_hand():
     #   10 > 10 no, 5 cells moved -> no; 11 > 10 -> yes (condition 3); 5 steps and <= 2 moved -> yes
     #   4 steps -> too early; 3 moved -> no; 6 steps, 1 moved -> yes; fresh -> no; 30 == M -> no
     want = [False, True, True, True, False, False, True, False, False]
-    assert rc.stuck(since_new, moved, size).tolist() == want
+    assert gw.stuck(since_new, moved, size).tolist() == want
 
 
 def test_stage_smaller_than_the_eval_maps_still_evaluates(tmp_path, monkeypatch, restore_sigint):

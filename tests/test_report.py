@@ -430,7 +430,7 @@ def test_a_part_whose_model_is_not_trained_is_skipped(tmp_path, monkeypatch, cap
 def _tiny_model(module, path: Path, extra: dict) -> str:
     """An untrained export of `module`'s network (hidden 16) and the JSON a trainer writes beside it."""
     q = module.QNetwork(3, module.VIEW, 16, 0.5)
-    module.save_checkpoint(str(path), {"weights": {k: v.half() for k, v in q.state_dict().items()
+    gw.save_torch(str(path), {"weights": {k: v.half() for k, v in q.state_dict().items()
                                                    if "sigma" not in k and "eps" not in k}, "frames": 3, "hidden": 16})
     path.with_suffix(".json").write_text(json.dumps({"args": {"hidden": 16, "init_from": None, **extra},
                                                      "global_step": 10, "stage": "tiny", "wall_seconds": 60.0}))
@@ -487,7 +487,7 @@ def _tiny_scale_checkpoint(module, path: Path) -> str:
              "structured_eval": {**row, "fallback_share": 0.0}, "structured_eval_alone": row}
     args = dataclasses.asdict(module.Args(network="compact", learning_rate=5e-4, stage_steps_scale=0.333,
                                           camera_stages=False, heuristic_dead_ends=False, heuristic_random_ties=True))
-    module.save_checkpoint(str(path), {"model": q.state_dict(), "optimizer": {}, "global_step": 1000, "stage": 0,
+    gw.save_torch(str(path), {"model": q.state_dict(), "optimizer": {}, "global_step": 1000, "stage": 0,
                                        "wall": 5.0, "numpy_rng": {}, "torch_rng": torch.get_rng_state(), "args": args,
                                        "script": "rainbow_cpp", "curve": [point], **q.network()})
     return str(path)

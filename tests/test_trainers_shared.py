@@ -38,12 +38,12 @@ TRAINERS = {"rainbow_cpp": rc, "rainbow_marl": rm}
 SHARED = [
     "SCRIPT", "HERE", "DEEP", "OBSERVATION", "VIEW", "CHANNELS", "LAST_ACTIONS", "OUT_OF_BOUNDS", "EXTRAS",
     "OUT_OF_BOUNDS_SCALE", "MOVES", "DISSERTATION", "NETWORKS", "SCALE_KEYS", "HINTS", "COMPACT", "CHECKPOINT_KEYS",
-    "UNREADABLE", "NoisyLinear", "Dueling", "QNetwork", "CompactQNetwork", "build_network", "observation_settings",
+    "NoisyLinear", "Dueling", "QNetwork", "CompactQNetwork", "build_network", "observation_settings",
     "frame_shape", "device_of", "SumTree", "Replay", "Stacker", "observe", "to_torch",
-    "stuck", "large_margin_loss", "learn", "diagnostics_of",
-    "save_checkpoint", "export", "read_model", "network_of", "policy_from", "load_policy",
-    "load_checkpoint", "check_flags", "with_network", "observed", "seed_everything", "start_run", "hinted", "save_run",
-    "progress_bar", "reason", "RUN_FLAGS", "settle_flags",
+    "large_margin_loss", "learn", "diagnostics_of",
+    "export", "read_model", "network_of", "policy_from", "load_policy",
+    "load_checkpoint", "check_flags", "with_network", "observed", "start_run", "hinted", "save_run",
+    "progress_bar", "RUN_FLAGS", "settle_flags",
 ]
 # the Args fields that the shared code reads, equal in both (flag, default and docstring)
 SHARED_FLAGS = ["exp_name", "seed", "run_name", "threads", "cuda", "torch_deterministic", "quiet",

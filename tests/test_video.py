@@ -104,7 +104,7 @@ def test_rainbow_video_and_compare_picture(tmp_path, filmed):
     import rainbow_cpp
     q = rainbow_cpp.QNetwork(3, 41, 16, 0.5)
     model = tmp_path / "tiny.pt"
-    rainbow_cpp.save_checkpoint(str(model), {"weights": {k: v.half() for k, v in q.state_dict().items()
+    gw.save_torch(str(model), {"weights": {k: v.half() for k, v in q.state_dict().items()
                                                          if "sigma" not in k and "eps" not in k},
                                              "frames": 3, "hidden": 16})
     out, video = run(tmp_path, policy="rainbow", checkpoint=str(model), dataset=str(ROOT / "maps/cpp_eval.npz"),
@@ -119,7 +119,7 @@ def test_marl_video(tmp_path, filmed):
     import rainbow_marl
     q = rainbow_marl.QNetwork(3, 41, 16, 0.5)
     model = tmp_path / "tiny.pt"
-    rainbow_marl.save_checkpoint(str(model), {"weights": {k: v.half() for k, v in q.state_dict().items()
+    gw.save_torch(str(model), {"weights": {k: v.half() for k, v in q.state_dict().items()
                                                           if "sigma" not in k and "eps" not in k},
                                               "frames": 3, "hidden": 16})
     out, video = run(tmp_path, policy="marl", checkpoint=str(model), dataset=str(ROOT / "maps/marl_eval.npz"),
