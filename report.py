@@ -55,19 +55,24 @@ PARTS = {"classical": "classical_cpp.json", "structured": "planners_structured.j
          "rainbow_cpp": "rainbow_cpp.json", "rainbow_marl": "rainbow_marl.json",
          "tabular": os.path.join("tabular", "fig5_5.json"),
          "scale_references": "rainbow_cpp_scale_references.json", "rainbow_cpp_scale": "rainbow_cpp_scale.json",
-         "scale_figures": "rainbow_cpp_scale_figures.json"}
+         "scale_figures": "rainbow_cpp_scale_figures.json", "td_finetune": "rainbow_cpp_td_finetune.json"}
 IN_CLASSICAL = {"structured": "structured_eval", "rollout": "rollout"}  # parts classical_cpp.compare also holds
 MODELS = {"rainbow_cpp": evaluate.DEFAULT_CHECKPOINT["rainbow"], "sensors": evaluate.DEFAULT_CHECKPOINT["rainbow"],
           "rainbow_marl": evaluate.DEFAULT_CHECKPOINT["marl"],
           "tabular": evaluate.DEFAULT_CHECKPOINT["tabular"], "scale_references": evaluate.DEFAULT_CHECKPOINT["rainbow"],
           "rainbow_cpp_scale": "models/rainbow_cpp_dissertation_run.pt",  # the scale run's committed training state
-          "scale_figures": "models/rainbow_cpp_dissertation_run.pt"}
+          "scale_figures": "models/rainbow_cpp_dissertation_run.pt",
+          "td_finetune": "models/rainbow_cpp_td_finetune_run.pt"}  # the TD fine-tuning's committed training state
 SCRIPTS = {"rainbow_cpp": "rainbow_cpp.py", "sensors": "rainbow_cpp.py", "rainbow_marl": "rainbow_marl.py",
            "tabular": "tabular_q.py", "scale_references": "rainbow_cpp.py", "rainbow_cpp_scale": "rainbow_cpp.py",
-           "scale_figures": "rainbow_cpp.py"}
+           "scale_figures": "rainbow_cpp.py", "td_finetune": "rainbow_cpp.py"}
 LEARNING_RATE_SWEEP = "learning_rate_sweep.json"  # benchmarks/learning_rate.py's JSON, read when present
 LEARNING_RATE_FIG68 = "learning_rate_fig68.json"  # the same with --network fig6.8, read when present
 SCALE_REFERENCES = ("greedy", "greedy-far-first", "lkh")  # planners drawn beside the scale run's curve (and the model)
+TD_REFERENCES = ("greedy-far-first", "rainbow")  # scale_references drawn beside the TD fine-tuning's curve
+# docs/experiments.md's fresh per-family maps: map k of size z of the f-th family drawn with seed
+# FRESH_SEED + 10,000 f + 100 k + z (no dataset or training uses these seeds), FRESH_OBSTACLES of the cells requested
+FRESH_SEED, FRESH_PER_SIZE, FRESH_SIZES, FRESH_OBSTACLES = 500_000, 8, range(10, 30), 0.15
 FIGURES_PER_SIZE, FIGURES_BOX_SIZES = 100, (5, 10, 15, 20, 25, 30)  # Figs. 6.13-6.16: all of cpp_eval; the box plots' sizes
 ALGORITHM_NAMES = {"q-learning": "Q-learning", "sarsa": "SARSA", "double-q": "Double Q-learning",
                    "watkins": "Watkins's Q(λ)"}  # tabular_q.py --algorithm, as the figure's title names it
@@ -87,7 +92,8 @@ FIGURES = {"planners_by_size": "planners_overlap_by_size.png", "planners_externa
            "planners_structured": "planners_structured.png", "marl_baselines": "marl_baselines.png",
            "rainbow_cpp": "rainbow_overlap_by_size.png", "sensors": "rainbow_sensors.png",
            "rainbow_marl": "rainbow_marl_time_save.png", "fig5_4": "tabular_fig5_4.png", "fig5_5": "tabular_fig5_5.png",
-           "rainbow_cpp_scale": "rainbow_cpp_scale.png", "scale_figures": "rainbow_cpp_scale_figures.png"}
+           "rainbow_cpp_scale": "rainbow_cpp_scale.png", "scale_figures": "rainbow_cpp_scale_figures.png",
+           "td_finetune": "rainbow_cpp_td_finetune.png"}
 # The numbers the report holds the results against, each with its source; no other number in the text is typed.
 REFERENCE = {
     # Table 5.1: training time (s) of 100,000 episodes on 6x6, columns (heuristic, 0 obstacles), (heuristic, 1),
@@ -346,12 +352,14 @@ def scale_references(model: str, quiet: bool = False) -> dict:
 
 
 def scale_curve(checkpoint: str) -> dict:
-    """The scale run's learning curve and flags, read from its training checkpoint (rainbow_cpp.py --curve-every keeps
-    the curve in it), with the checkpoint's steps, stage, wall time and hash."""
+    """A run's learning curve and flags, read from its training checkpoint (rainbow_cpp.py --curve-every keeps the
+    curve in it), with the checkpoint's steps, stage, wall time and hash, and the model a warm-started run began from."""
     import rainbow_cpp
     state = rainbow_cpp.load_checkpoint(checkpoint)
     record = checkpoint_record(checkpoint, state)
+    parent = state.get("parent")  # --init-from's record; the scale run, from scratch, has none
     return {"checkpoint": record.pop("path"), **record, "wall_seconds": round(state["wall"]), "args": state["args"],
+            **({"parent": {k: parent.get(k) for k in ("path", "sha256", "global_step")}} if parent else {}),
             "curve": json.loads(json.dumps(state.get("curve", [])))}  # as JSON keeps it (its keys strings)
 
 
@@ -373,6 +381,58 @@ def scale_figures(model: str, p2p_maps: int, quiet: bool = False) -> dict:
     episodes, families = structured_episodes()
     return result | {"structured_eval": by_family(evaluate.run_rainbow(args, episodes), families),
                      "external": rainbow_external(args), "p2p": rainbow_p2p(args, p2p_maps)}
+
+
+def structured_eval_episodes() -> tuple[list[tuple[str, gridworld.Scenario]], list[str]]:
+    """Every structured_eval map from its first stored start, as `evaluate.py --dataset maps/structured_eval.npz` runs
+    them, and each one's family."""
+    path = os.path.join(ROOT, "maps", "structured_eval.npz")
+    with np.load(path) as data:
+        families = data["family"].tolist()
+    return evaluate.scenarios_from(evaluate.Args(dataset=path)), families
+
+
+def fresh_episodes() -> tuple[list[tuple[str, gridworld.Scenario]], list[str]]:
+    """docs/experiments.md's fresh per-family maps (FRESH_SEED's recipe), FRESH_PER_SIZE maps of each size in
+    FRESH_SIZES for random and each of gridworld.STRUCTURED_FAMILIES, each from its drawn start; and their families."""
+    families = ("random", *gridworld.STRUCTURED_FAMILIES)
+    keys = [(f, k, z) for f in range(len(families)) for k in range(FRESH_PER_SIZE) for z in FRESH_SIZES]
+    episodes = [(f"fresh[{families[f]}]", classical_cpp.with_starts(gridworld.generate_scenarios(
+        1, seed=FRESH_SEED + 10_000 * f + 100 * k + z, size=z, map_family=families[f],
+        number_obstacles=int(FRESH_OBSTACLES * z * z), obstacles_random=True)[0])) for f, k, z in keys]
+    return episodes, [families[f] for f, _, _ in keys]
+
+
+def policy_rows(q, episodes: list[tuple[str, gridworld.Scenario]], fallback: bool) -> list[dict]:
+    """A rainbow_cpp network (noise off) on every episode in one batched rollout (evaluate.run_rainbow rolls out 64
+    at a time), with evaluate.py's fallback (deterministic ties) or without it; each episode's metrics."""
+    import rainbow_cpp
+    m = rainbow_cpp.evaluate_policy(q, [s for _, s in episodes], q.network()["frames"], heuristic=fallback,
+                                    dead_ends_first=evaluate.Args.heuristic_dead_ends)
+    return [{k: v[j].item() for k, v in m.items()} for j in range(len(episodes))]
+
+
+def td_finetune_results(checkpoint: str, shipped: str, quiet: bool = False) -> dict:
+    """The TD fine-tuning of the shipped model: its learning curve (scale_curve), then the greedy network of its
+    committed checkpoint beside the shipped model (each with the fallback, and alone) and greedy-far-first on all of
+    structured_eval and on the fresh per-family maps; by_family of each, per set."""
+    import rainbow_cpp
+    result = scale_curve(checkpoint) | {
+        "slices": rainbow_cpp.CURVE_SLICES, "shipped": checkpoint_record(shipped, _model_json(shipped)),
+        "fresh_recipe": {"seed": FRESH_SEED, "per_size": FRESH_PER_SIZE, "sizes": [FRESH_SIZES[0], FRESH_SIZES[-1]],
+                         "obstacles": FRESH_OBSTACLES}}
+    models = {"fine_tuned": rainbow_cpp.load_policy(checkpoint), "shipped": rainbow_cpp.load_policy(shipped)}
+    sets = {"structured_eval": structured_eval_episodes(), "fresh": fresh_episodes()}
+    with _bar(len(sets) * (2 * len(models) + 1), "td_finetune", quiet) as bar:
+        for name, (episodes, families) in sets.items():
+            result[name] = {"maps": {f: families.count(f) for f in dict.fromkeys(families)}}
+            for key, q in models.items():
+                for suffix, fallback in (("", True), ("_alone", False)):
+                    result[name][key + suffix] = by_family(policy_rows(q, episodes, fallback), families)
+                    bar.update()
+            result[name]["greedy_far_first"] = by_family(evaluate.run_planner("greedy-far-first", episodes), families)
+            bar.update()
+    return result
 
 
 def family_stats(rows: list[dict]) -> dict:
@@ -549,6 +609,8 @@ def collect(args: Collect, staging: str) -> list[str]:
             result = scale_curve(model)
         elif part == "scale_figures":
             result = scale_figures(model, args.p2p_maps, args.quiet)
+        elif part == "td_finetune":
+            result = td_finetune_results(model, os.path.join(ROOT, MODELS["rainbow_cpp"]), args.quiet)
         else:
             result = tabular_results(model, args.quiet)
         result["provenance"] = provenance(started, args)
@@ -1323,6 +1385,80 @@ def other_set_lines(figs: dict, rb: dict | None) -> list[str]:
     return ["", table(["with the fallback: mean overlap, or share", "scale run's model", "shipped model"], rows)]
 
 
+def same_maps(run: dict, refs: dict | None) -> dict | None:
+    """scale_references where they were measured on the maps of `run`'s learning curve, else None."""
+    return refs if refs is not None and refs.get("slices") == run["slices"] else None
+
+
+def _overlap(row: dict) -> str:
+    """A mean overlap, with the completion beside it where some episode did not complete."""
+    return f"{row['overlap']:.3f}" + ("" if row["completion"] == 1 else f" ({_share(row['completion'])} completed)")
+
+
+def td_finetune_lines(td: dict | None, refs: dict | None) -> list[str]:
+    """The TD fine-tuning of the shipped model: its flags, one row a point of its learning curve, the shipped model and
+    greedy-far-first on the same maps; then its committed checkpoint against both on all of structured_eval and on the
+    fresh per-family maps, per family, and in how many rows it is below each."""
+    if td is None:
+        return [NOT_COLLECTED.format(file=PARTS["td_finetune"], part="td_finetune", model=MODELS["td_finetune"],
+                                     script=SCRIPTS["td_finetune"])]
+    a, parent, shipped = td["args"], td.get("parent") or {}, td["shipped"]
+    flags = (f"--stages {a['stages']} --teacher {a['teacher']} --td-weight {a['td_weight']:g} --margin-loss "
+             f"{a['margin_loss']:g} --learning-rate {a['learning_rate']:g}"
+             + (" --heuristic-far-first" if a["heuristic_far_first"] else ""))
+    start = (f"warm-started from `{parent['path']}` (sha256 {parent['sha256'][:12]}, {parent['global_step']:,} steps)"
+             if parent.get("sha256") else "its warm start not recorded")
+    lines = [f"`rainbow_cpp.py {flags}`, {start}; the checkpoint `{td['checkpoint']}` (sha256 {td['sha256'][:12]}) "
+             f"stands at {td['global_step']:,} steps, stage index {td['stage']}, {td['wall_seconds'] / 3600:.1f} h of "
+             f"training. Each point: the greedy policy on every {_ordinal(td['slices']['cpp_eval'])} cpp_eval map and "
+             f"every {_ordinal(td['slices']['structured_eval'])} structured_eval map (the scale run's), with the "
+             "fallback and without it (alone).", ""]
+    if td["curve"]:
+        rows = [[f"{p['step']:,}", p["stage"], recorded(p.get("learning_rate"), "{:g}"),
+                 f"{p['cpp_eval']['overlap']:.3f}", f"{100 * p['cpp_eval_alone']['completion']:.1f}%",
+                 str(p["cpp_eval_alone"]["outliers"]), f"{p['structured_eval']['overlap']:.3f}",
+                 f"{100 * p['structured_eval_alone']['completion']:.1f}%", f"{p['cpp_eval']['fallback_share']:.4f}",
+                 str(p["sps"])] for p in td["curve"]]
+        lines += [table(["steps", "stage", "learning rate", "cpp_eval overlap", "alone: completion", "alone: outliers",
+                         "structured overlap", "alone: completion", "fallback share", "steps/s"], rows), "",
+                  f"![the TD fine-tuning's learning curve]({FIGURES['td_finetune']})"]
+    else:
+        lines.append("No point of the learning curve yet (the first comes at `--curve-every` steps).")
+    refs = same_maps(td, refs)
+    if refs is not None:
+        label = {"rainbow": "shipped rainbow_cpp (+ fallback)"}
+        lines += ["", table(["reference, same maps", "cpp_eval overlap", "structured overlap"],
+                            [[label.get(n, n), f"{refs['cpp_eval'][n]['overlap']:.3f}",
+                              f"{refs['structured_eval'][n]['overlap']:.3f}"] for n in TD_REFERENCES])]
+    r = td["fresh_recipe"]
+    rows, better = [], {"shipped": 0, "greedy_far_first": 0, "completion": 0}
+    for name in ("structured_eval", "fresh"):
+        for family, ft in td[name]["fine_tuned"].items():
+            others = {k: td[name][k][family] for k in ("shipped", "greedy_far_first")}
+            alone, shipped_alone = td[name]["fine_tuned_alone"][family], td[name]["shipped_alone"][family]
+            better["shipped"] += ft["overlap"] < others["shipped"]["overlap"]
+            better["greedy_far_first"] += ft["overlap"] < others["greedy_far_first"]["overlap"]
+            better["completion"] += alone["completion"] >= shipped_alone["completion"]
+            maps = sum(td[name]["maps"].values()) if family == "all" else td[name]["maps"][family]
+            rows.append([f"{name}: {family}", f"{maps:,}", _overlap(ft), _overlap(others["shipped"]),
+                         _overlap(others["greedy_far_first"]), _share(alone["completion"]),
+                         _share(shipped_alone["completion"])])
+    n = len(rows)
+    return lines + [
+        "", f"The checkpoint's greedy network beside the shipped model `{shipped['path']}` (sha256 "
+        f"{shipped['sha256'][:12]}) and greedy-far-first, both networks with evaluate.py's fallback (deterministic "
+        f"ties) and alone, on all of structured_eval ({sum(td['structured_eval']['maps'].values()):,} maps, each from "
+        f"its first stored start) and on the fresh per-family maps ({r['per_size']} a size {r['sizes'][0]}-"
+        f"{r['sizes'][1]} a family, {sum(td['fresh']['maps'].values()):,} in all, {r['obstacles']:.0%} of the cells "
+        f"obstacles requested; drawn as the experiments log's fresh maps, with seeds from {r['seed']:,} on, which no "
+        "dataset or training uses). Mean overlap with the fallback; completion alone.", "",
+        table(["set: family", "maps", "fine-tuned", "shipped", "greedy-far-first", "fine-tuned alone: completion",
+               "shipped alone: completion"], rows), "",
+        f"The fine-tuned model's mean overlap is below the shipped model's in {better['shipped']} of {n} rows and below "
+        f"greedy-far-first's in {better['greedy_far_first']} of {n}; its completion alone is at least the shipped "
+        f"model's in {better['completion']} of {n}."]
+
+
 def render(results: dict) -> str:
     """RESULTS.md from `load_results`: a pure function of the JSON, the same files always give the same text."""
     paths = results["paths"]
@@ -1357,6 +1493,8 @@ def render(results: dict) -> str:
     with reading(paths["scale_figures"] or "the scale run's figures"):
         scale += ["", "### Figs. 6.13-6.16 of the scale run's model", "",
                   *scale_figure_lines(results["scale_figures"], results["rainbow_cpp"])]
+    with reading(paths["td_finetune"] or "the TD fine-tuning's results"):
+        td_finetune = td_finetune_lines(results["td_finetune"], results["scale_references"])
     with reading(paths["learning_rate"] or "the learning-rate sweep"):
         scale += ["", *learning_rate_lines(results["learning_rate"])]
     if results["learning_rate_fig68"] is not None:
@@ -1371,6 +1509,7 @@ def render(results: dict) -> str:
         "## Provenance", "", *provenance_lines(results), "",
         "## Single agent, full information (Figs. 6.13-6.16)", "", *full_info, "",
         "## The dissertation's recipe at scale (Table 6.2 from scratch)", "", *scale, "",
+        "## TD fine-tuning of the shipped model", "", *td_finetune, "",
         "## Comparison with classical planners (Table 6.4)", "", *comparison, "",
         "## Structured maps (planners)", "", *structured, "",
         "## Sensor-based coverage (Figs. 6.17-6.22)", "", *sensor_based, "", *sensors, "",
@@ -1555,9 +1694,11 @@ def plot_sensors(sr: dict, folder: str) -> list[str]:
     return [_save(fig, folder, "sensors")]
 
 
-def plot_scale(scale: dict, refs: dict | None, folder: str) -> list[str]:
-    """The scale run's learning curve: mean overlap with the fallback on its two held-out sets against environment
-    steps, and completion without the fallback; the references on the same maps as horizontal lines."""
+def plot_scale(scale: dict, refs: dict | None, folder: str, key: str = "rainbow_cpp_scale", run: str = "scale run",
+               references: tuple[str, ...] = (*SCALE_REFERENCES, "rainbow")) -> list[str]:
+    """A run's learning curve (the scale run's, or under `key` another's): mean overlap with the fallback on its two
+    held-out sets against environment steps, and completion without the fallback; the `references` on the same maps
+    as horizontal lines."""
     import matplotlib.pyplot as plt
     if not scale["curve"]:
         return []
@@ -1566,9 +1707,10 @@ def plot_scale(scale: dict, refs: dict | None, folder: str) -> list[str]:
     colours = {"greedy": "tab:red", "greedy-far-first": "tab:orange", "lkh": "tab:green", "rainbow": "tab:purple"}
     label = {"rainbow": "shipped rainbow_cpp", "greedy": "greedy (dissertation's heuristic)"}
     for ax, name in zip(axes, ("cpp_eval", "structured_eval")):
-        ax.plot(steps, [p[name]["overlap"] for p in scale["curve"]], "o-", color="black", label="scale run (+ fallback)")
+        ax.plot(steps, [p[name]["overlap"] for p in scale["curve"]], "o-", color="black", label=f"{run} (+ fallback)")
         for ref, row in ((refs or {}).get(name) or {}).items():
-            ax.axhline(row["overlap"], ls="--", color=colours.get(ref, "grey"), label=label.get(ref, ref))
+            if ref in references:
+                ax.axhline(row["overlap"], ls="--", color=colours.get(ref, "grey"), label=label.get(ref, ref))
         ax.set(title=f"{name}: mean overlap with the fallback", xlabel="environment steps (M)", ylabel="mean overlap",
                xlim=(0, max(steps) * 1.05), ylim=(0, None))
         ax.legend(fontsize=8)
@@ -1579,7 +1721,7 @@ def plot_scale(scale: dict, refs: dict | None, folder: str) -> list[str]:
     axes[2].set(title="completion without the fallback", xlabel="environment steps (M)", ylabel="% of maps",
                 xlim=(0, max(steps) * 1.05), ylim=(0, 101))
     axes[2].legend(fontsize=8)
-    return [_save(fig, folder, "rainbow_cpp_scale")]
+    return [_save(fig, folder, key)]
 
 
 def plot_scale_figures(figs: dict, folder: str) -> list[str]:
@@ -1638,6 +1780,11 @@ def plot(results: dict, folder: str) -> list[str]:
     if results["rainbow_cpp_scale"] is not None:
         with reading(paths["rainbow_cpp_scale"]):
             written += plot_scale(results["rainbow_cpp_scale"], results["scale_references"], folder)
+    if results["td_finetune"] is not None:
+        with reading(paths["td_finetune"]):
+            td = results["td_finetune"]
+            written += plot_scale(td, same_maps(td, results["scale_references"]), folder, "td_finetune", "TD fine-tuning",
+                                  TD_REFERENCES)
     if results["scale_figures"] is not None:
         with reading(paths["scale_figures"]):
             written += plot_scale_figures(results["scale_figures"], folder)
@@ -1658,7 +1805,9 @@ class Collect:
     sensor failures, Figs. 6.17-6.22), rainbow_cpp, rainbow_marl, tabular, scale_references (the planners and the
     shipped model on the scale run's held-out maps: ~20 min on one core, most of it LKH), rainbow_cpp_scale (the scale
     run's learning curve, read from its committed checkpoint: seconds), scale_figures (Figs. 6.13-6.16 of the scale run's
-    model on all of cpp_eval)"""
+    model on all of cpp_eval), td_finetune (the TD fine-tuning's curve from its committed checkpoint, and its model
+    beside the shipped one and greedy-far-first on all of structured_eval and the fresh per-family maps: ~30 min on one
+    core)"""
     reuse: bool = False
     """collect only the parts whose JSON is missing under --out"""
     overwrite: bool = False

@@ -53,6 +53,14 @@ def _copy_results(tmp_path: Path) -> Path:
     return out
 
 
+WITH_ITS_PART = ("sensors", "td_finetune")  # figures drawn only once their part is collected
+
+
+def _drawn(results: dict) -> list[str]:
+    """The figures `results` give: each but those of WITH_ITS_PART whose part is not collected."""
+    return [f for key, f in report.FIGURES.items() if key not in WITH_ITS_PART or results[key] is not None]
+
+
 def _leftovers(folder: Path) -> list[str]:
     return [p.name for p in folder.iterdir() if p.name.startswith(".report-") or ".tmp-" in p.name]
 
@@ -72,8 +80,8 @@ def test_render_keeps_every_table_row_of_the_committed_results_md():
     assert not lost, sorted(lost)[:5]
     headings = [ln for ln in committed.splitlines() if ln.startswith("## ")]
     assert all(h in text.splitlines() for h in headings)
-    for key, figure in report.FIGURES.items():  # the sensors figure comes with its part
-        assert (f"({figure})" in text) == (key != "sensors" or results["sensors"] is not None)
+    for figure in report.FIGURES.values():  # a figure of WITH_ITS_PART comes with its part
+        assert (f"({figure})" in text) == (figure in _drawn(results))
 
 
 def test_render_is_a_pure_function_of_the_json(monkeypatch):
@@ -170,8 +178,8 @@ def test_missing_learned_parts_say_not_collected():
     results["rainbow_cpp"] = results["rainbow_marl"] = results["tabular"] = results["sensors"] = None
     text = report.render(results)
     structured = "structured_eval" not in report.planners(results)  # "Not collected" too while it is missing
-    team = results["team_rollout"] is None
-    assert text.count("*Not collected:*") == 3 + 1 + 1 + structured + team + 1  # rainbow's 3, marl's, Fig. 5.5, sensors
+    team, td = results["team_rollout"] is None, results["td_finetune"] is None  # "Not collected" too while missing
+    assert text.count("*Not collected:*") == 3 + 1 + 1 + structured + team + 1 + td  # rainbow's 3, marl's, 5.5, sensors
     assert "`python report.py collect --parts rainbow_marl`" in text
     assert "**Fig. 5.4**" in text  # the training runs are there all the same
 
@@ -389,12 +397,12 @@ def test_render_and_plot_write_into_out_only(tmp_path):
     out = _copy_results(tmp_path)
     (out / "RESULTS.md").unlink()
     for figure in report.FIGURES.values():
-        (out / figure).unlink()
+        (out / figure).unlink(missing_ok=True)
     assert report.main(report.Render(out=str(out))) == ["RESULTS.md"]
     assert (out / "RESULTS.md").read_text() == report.render(_committed())
     written = report.main(report.Plot(out=str(out)))
-    assert sorted(written) == sorted(report.FIGURES.values())
-    for figure in report.FIGURES.values():
+    assert sorted(written) == sorted(_drawn(_committed()))
+    for figure in written:
         assert (out / figure).stat().st_size > 10_000
     assert _hashes(RESULTS) == committed and not _leftovers(tmp_path)
 
@@ -407,11 +415,12 @@ def test_all_with_reuse_runs_nothing_when_every_json_is_there(tmp_path, monkeypa
 
     for name in ("compare", "compare_structured", "compare_rollout", "compare_team_rollout"):
         monkeypatch.setattr(cc, name, forbidden)
-    for name in ("rainbow_results", "sensor_results", "marl_results", "tabular_results"):
+    for name in ("rainbow_results", "sensor_results", "marl_results", "tabular_results", "td_finetune_results"):
         monkeypatch.setattr(report, name, forbidden)
+    monkeypatch.setitem(report.MODELS, "td_finetune", str(tmp_path / "nothing.pt"))  # skipped while not collected
     jsons = {k: v for k, v in _hashes(out).items() if k.endswith(".json")}
     written = report.main(report.All(out=str(out), reuse=True, quiet=True))
-    assert written == sorted(["RESULTS.md", *report.FIGURES.values()])
+    assert written == sorted(["RESULTS.md", *_drawn(_committed())])
     assert {k: v for k, v in _hashes(out).items() if k.endswith(".json")} == jsons
 
 
@@ -422,8 +431,9 @@ def test_a_part_whose_model_is_not_trained_is_skipped(tmp_path, monkeypatch, cap
     assert "rainbow_marl: skipped" in capsys.readouterr().out
     shutil.copy(RESULTS / "classical_cpp.json", tmp_path / "classical_cpp.json")
     scale = ["rainbow_cpp_scale", "scale_figures"] if (ROOT / report.MODELS["rainbow_cpp_scale"]).exists() else []
+    td = ["td_finetune"] if (ROOT / report.MODELS["td_finetune"]).exists() else []
     assert report.parts_to_collect(report.Collect(out=str(tmp_path), reuse=True)) == [
-        "team_rollout", "sensors", "rainbow_cpp", "tabular", "scale_references", *scale]  # classical_cpp.json alone
+        "team_rollout", "sensors", "rainbow_cpp", "tabular", "scale_references", *scale, *td]  # classical_cpp.json alone
 
 
 # ----------------------------------------------------------------------------- collect, on tiny settings
@@ -468,10 +478,15 @@ def tiny(tmp_path, monkeypatch, small_report_maps):
     monkeypatch.setattr(rainbow_cpp, "curve_maps", lambda: small)
     monkeypatch.setattr(report, "FIGURES_PER_SIZE", 2)
     scale_run = _tiny_scale_checkpoint(rainbow_cpp, models / "run.pt")
+    monkeypatch.setattr(report, "FRESH_PER_SIZE", 1)
+    monkeypatch.setattr(report, "FRESH_SIZES", range(10, 11))
+    structured = report.structured_eval_episodes
+    monkeypatch.setattr(report, "structured_eval_episodes", lambda: tuple(x[::420] for x in structured()))  # 1 a family
     monkeypatch.setattr(report, "MODELS", {
         "rainbow_cpp": rainbow, "sensors": rainbow,
         "rainbow_marl": _tiny_model(rainbow_marl, models / "rainbow_marl.pt", {}), "tabular": str(table),
-        "scale_references": rainbow, "rainbow_cpp_scale": scale_run, "scale_figures": scale_run})
+        "scale_references": rainbow, "rainbow_cpp_scale": scale_run, "scale_figures": scale_run,
+        "td_finetune": _tiny_finetune_checkpoint(scale_run, models / "td_run.pt", rainbow)})
     return tmp_path
 
 
@@ -490,6 +505,15 @@ def _tiny_scale_checkpoint(module, path: Path) -> str:
     gw.save_torch(str(path), {"model": q.state_dict(), "optimizer": {}, "global_step": 1000, "stage": 0,
                                        "wall": 5.0, "numpy_rng": {}, "torch_rng": torch.get_rng_state(), "args": args,
                                        "script": "rainbow_cpp", "curve": [point], **q.network()})
+    return str(path)
+
+
+def _tiny_finetune_checkpoint(run: str, path: Path, shipped: str) -> str:
+    """The tiny scale run's checkpoint as a warm-started run writes it: with its parent's record."""
+    import rainbow_cpp
+    parent = {"path": shipped, "sha256": hashlib.sha256(Path(shipped).read_bytes()).hexdigest(), "global_step": 10,
+              "stage": "tiny", "provenance": {"git_commit": "abc"}}
+    gw.save_torch(str(path), {**rainbow_cpp.load_checkpoint(run), "parent": parent})
     return str(path)
 
 
@@ -534,6 +558,17 @@ def test_all_on_tiny_settings_writes_into_out_only(tiny):
     assert list(mr["structured_eval"]["agents"]) == ["2", "3"] and mr["structured_eval"]["maps"] == 2
     assert list(mr["structured_eval"]["agents"]["3"]) == ["time_save", "completion", "greedy", "greedy_dead_ends",
                                                           "greedy_far_first", "partition"]
+    td = json.loads((out / "rainbow_cpp_td_finetune.json").read_text())
+    assert td["curve"] == json.loads((out / "rainbow_cpp_scale.json").read_text())["curve"]
+    assert td["parent"]["global_step"] == 10 and td["shipped"]["sha256"] == td["parent"]["sha256"]
+    assert td["structured_eval"]["maps"] == dict.fromkeys(gw.STRUCTURED_FAMILIES, 1)
+    assert td["fresh"]["maps"] == dict.fromkeys(("random", *gw.STRUCTURED_FAMILIES), 1)
+    for name in ("structured_eval", "fresh"):
+        assert list(td[name]) == ["maps", "fine_tuned", "fine_tuned_alone", "shipped", "shipped_alone",
+                                  "greedy_far_first"]
+        assert list(td[name]["shipped"]) == [*td[name]["maps"], "all"]
+        for key in ("fine_tuned", "shipped", "greedy_far_first"):  # the fallback finishes what the net cannot
+            assert all(v["completion"] == 1.0 for v in td[name][key].values())
     fig55 = json.loads((out / "tabular" / "fig5_5.json").read_text())
     assert {(s["size"], s["obstacles"]) for s in fig55["settings"]} == {(4, 0), (4, 2), (6, 0), (6, 2)}
     assert "curve_rho" not in fig55["model"]
@@ -752,3 +787,110 @@ def test_the_scale_figures_count_outliers_and_completion_by_hand():
     text = "\n".join(report.scale_figure_lines(figs, shipped))
     assert "| structured_eval subset: rooms | 0.200 | 0.100 |" in text and "| MovingAI episodes | 0.200 | 0.100 |" in text
     assert "| p2p_eval (2): a shortest path | 50.0% | 100.0% |" in text
+
+
+# ----------------------------------------------------------------------------- the TD fine-tuning
+def test_the_td_finetuning_curve_and_warm_start_are_copied_from_its_checkpoint(tmp_path):
+    import rainbow_cpp
+    run = _tiny_scale_checkpoint(rainbow_cpp, tmp_path / "run.pt")
+    shipped = _tiny_model(rainbow_cpp, tmp_path / "shipped.pt", {})
+    finetune = _tiny_finetune_checkpoint(run, tmp_path / "td_run.pt", shipped)
+    td = report.scale_curve(finetune)
+    assert td["checkpoint"] == os.path.relpath(finetune, ROOT)
+    assert td["sha256"] == hashlib.sha256(Path(finetune).read_bytes()).hexdigest()
+    assert (td["global_step"], td["stage"], td["wall_seconds"]) == (1000, 0, 5)
+    assert td["curve"] == rainbow_cpp.load_checkpoint(run)["curve"] and td["args"]["learning_rate"] == 5e-4
+    assert td["parent"] == {"path": shipped, "sha256": hashlib.sha256(Path(shipped).read_bytes()).hexdigest(),
+                            "global_step": 10}  # the warm start's record, not its whole chain
+    assert "parent" not in report.scale_curve(run)  # a run from scratch
+
+
+def test_fresh_maps_follow_the_experiments_logs_recipe(monkeypatch):
+    monkeypatch.setattr(report, "FRESH_PER_SIZE", 2)
+    monkeypatch.setattr(report, "FRESH_SIZES", range(10, 12))
+    episodes, families = report.fresh_episodes()
+    assert families == [f for f in ("random", *gw.STRUCTURED_FAMILIES) for _ in range(4)]
+    maze = gw.generate_scenarios(1, seed=500_000 + 10_000 * 4 + 100 * 1 + 11, size=11, map_family="maze",
+                                 number_obstacles=int(0.15 * 11 * 11), obstacles_random=True)[0]
+    s = episodes[-1][1]  # the maze family's second map of size 11
+    assert np.array_equal(s.obstacles, maze.obstacles) and np.array_equal(s.starts, maze.starts)
+    assert s.covered[tuple(s.starts[0])] and episodes[-1][0] == "fresh[maze]"
+
+
+def _td_finetune() -> dict:
+    """A hand-made rainbow_cpp_td_finetune.json: one curve point; structured_eval with rooms (the fine-tuned model
+    below both others, completion alone 100% against 50%) and fresh with random (above both, half its episodes
+    completed even with the fallback)."""
+    def row(overlap, completion=1.0):
+        return {"overlap": overlap, "completion": completion, "heuristic_share": 0.0}
+
+    def entry(fine, fine_alone, shipped, shipped_alone, far_first):
+        return {"fine_tuned": fine, "fine_tuned_alone": fine_alone, "shipped": shipped, "shipped_alone": shipped_alone,
+                "greedy_far_first": far_first}
+
+    point = {"step": 1000, "stage": "mixed30", "sps": 300, "learning_rate": 1e-4,
+             "cpp_eval": {"overlap": 0.04, "fallback_share": 0.0012}, "cpp_eval_alone": {"completion": 0.9, "outliers": 7},
+             "structured_eval": {"overlap": 0.14}, "structured_eval_alone": {"completion": 0.75}}
+    structured = entry(row(0.1), row(0.5), row(0.2), row(0.6, 0.5), row(0.15))
+    fresh = entry(row(0.3, 0.5), row(0.9, 0.5), row(0.2), row(0.2), row(0.25))
+    return {"checkpoint": "models/x_run.pt", "sha256": "ab" * 32, "global_step": 2000, "stage": 0,
+            "wall_seconds": 7200, "args": {"stages": "s.yaml", "teacher": "heuristic", "td_weight": 1.0,
+                                           "margin_loss": 0.0, "learning_rate": 1e-4, "heuristic_far_first": True},
+            "parent": {"path": "models/rainbow_cpp.pt", "sha256": "cd" * 32, "global_step": 500},
+            "slices": {"cpp_eval": 5, "structured_eval": 14},
+            "shipped": {"path": "models/rainbow_cpp.pt", "sha256": "cd" * 32, "global_step": 500, "stage": "mixed30"},
+            "fresh_recipe": {"seed": 500_000, "per_size": 3, "sizes": [10, 10], "obstacles": 0.15}, "curve": [point],
+            "structured_eval": {"maps": {"rooms": 2}, **{k: {"rooms": v, "all": v} for k, v in structured.items()}},
+            "fresh": {"maps": {"random": 3}, **{k: {"random": v, "all": v} for k, v in fresh.items()}}}
+
+
+def test_the_td_finetuning_table_is_rendered_from_the_numbers(tmp_path):
+    td = _td_finetune()
+    refs = {"slices": {"cpp_eval": 5, "structured_eval": 14}, **{name: {
+        "greedy": {"overlap": 0.5}, "greedy-far-first": {"overlap": 0.0378}, "lkh": {"overlap": 0.01},
+        "rainbow": {"overlap": 0.1352}} for name in ("cpp_eval", "structured_eval")}}
+    text = "\n".join(report.td_finetune_lines(td, refs))
+    assert text.startswith("`rainbow_cpp.py --stages s.yaml --teacher heuristic --td-weight 1 --margin-loss 0 "
+                           "--learning-rate 0.0001 --heuristic-far-first`, warm-started from `models/rainbow_cpp.pt` "
+                           "(sha256 cdcdcdcdcdcd, 500 steps); the checkpoint `models/x_run.pt` (sha256 abababababab) "
+                           "stands at 2,000 steps, stage index 0, 2.0 h of training. Each point: the greedy policy on "
+                           "every 5th cpp_eval map and every 14th structured_eval map")
+    assert "| 1,000 | mixed30 | 0.0001 | 0.040 | 90.0% | 7 | 0.140 | 75.0% | 0.0012 | 300 |" in text
+    assert f"![the TD fine-tuning's learning curve]({report.FIGURES['td_finetune']})" in text
+    assert "| greedy-far-first | 0.038 | 0.038 |" in text and "| shipped rainbow_cpp (+ fallback) | 0.135 | 0.135 |" in text
+    assert "| lkh |" not in text and "| greedy |" not in text  # the scale run's other references
+    assert "| structured_eval: rooms | 2 | 0.100 | 0.200 | 0.150 | 100% | 50% |" in text
+    assert "| structured_eval: all | 2 | 0.100 | 0.200 | 0.150 | 100% | 50% |" in text
+    assert "| fresh: random | 3 | 0.300 (50% completed) | 0.200 | 0.250 | 50% | 100% |" in text
+    assert ("all of structured_eval (2 maps, each from its first stored start) and on the fresh per-family maps (3 a "
+            "size 10-10 a family, 3 in all, 15% of the cells obstacles requested; drawn as the experiments log's fresh "
+            "maps, with seeds from 500,000 on") in text
+    assert ("The fine-tuned model's mean overlap is below the shipped model's in 2 of 4 rows and below "
+            "greedy-far-first's in 2 of 4; its completion alone is at least the shipped model's in 2 of 4.") in text
+    moved = {**refs, "slices": {"cpp_eval": 10, "structured_eval": 14}}  # references on other maps: left out
+    assert "reference, same maps" not in "\n".join(report.td_finetune_lines(td, moved))
+    assert report.same_maps(td, moved) is None and report.same_maps(td, None) is None
+    written = report.plot_scale(td, refs, str(tmp_path), "td_finetune", "TD fine-tuning", report.TD_REFERENCES)
+    assert written == [str(tmp_path / report.FIGURES["td_finetune"])] and Path(written[0]).stat().st_size > 10_000
+
+
+def test_the_td_finetuning_has_its_section_and_a_bad_json_names_its_file():
+    results = _committed()
+    results["td_finetune"], results["paths"]["td_finetune"] = _td_finetune(), "x/td.json"
+    text = report.render(results)
+    section = text[text.index("## TD fine-tuning of the shipped model"):text.index("## Comparison with classical")]
+    assert "| fresh: random | 3 |" in section and "*Not collected:*" not in section
+    del results["td_finetune"]["fresh"]
+    with pytest.raises(ValueError, match=re.escape("x/td.json") + ".*KeyError: 'fresh'"):
+        report.render(results)
+
+
+def test_the_td_finetuning_not_collected_says_how_to_collect_it():
+    line = report.td_finetune_lines(None, None)
+    assert line == [report.NOT_COLLECTED.format(file="rainbow_cpp_td_finetune.json", part="td_finetune",
+                                                model="models/rainbow_cpp_td_finetune_run.pt", script="rainbow_cpp.py")]
+    assert "`python report.py collect --parts td_finetune`" in line[0]
+    results = _committed()
+    results["td_finetune"] = None
+    section = report.render(results).split("## TD fine-tuning of the shipped model\n\n", 1)[1].split("\n\n## ", 1)[0]
+    assert section == line[0]
