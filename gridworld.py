@@ -696,9 +696,9 @@ def resumed_flags(args: Any, saved: dict, source: str, own: tuple, replaceable: 
         if getattr(args, name) == defaults[name]:
             kept[name] = value
         elif name not in replaceable:
+            may = f" (--{', --'.join(r.replace('_', '-') for r in replaceable)} may change)" if replaceable else ""
             raise ValueError(f"--{name.replace('_', '-')} {getattr(args, name)} contradicts {source} "
-                             f"({name.replace('_', ' ')} {value}): a resumed run keeps its flags "
-                             f"(--{', --'.join(r.replace('_', '-') for r in replaceable)} may change)")
+                             f"({name.replace('_', ' ')} {value}): a resumed run keeps its flags{may}")
     return kept
 
 

@@ -69,6 +69,8 @@ def test_resumed_flags_keep_the_runs_own_and_refuse_a_contradiction():
     assert kept == {"seed": 7, "chance": 0.2}  # defaults take the run's; own and replaceable stay the command line's
     with pytest.raises(ValueError, match=r"^--chance 0.9 contradicts ck.pt \(chance 0.2\): a resumed run keeps its "):
         gw.resumed_flags(Flags(chance=0.9), saved, "ck.pt", own=("name",), replaceable=("rate",))
+    with pytest.raises(ValueError, match=r"\(rate 0.1\): a resumed run keeps its flags$"):  # nothing may change
+        gw.resumed_flags(Flags(rate=0.3), saved, "ck.pt", own=())
 
 
 def test_shapes_differ_names_the_first_three_differences():
