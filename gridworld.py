@@ -2746,7 +2746,7 @@ def team_rollout_actions(core: GridWorldCore, worlds=None, dead_ends_first: bool
     return chosen
 
 
-# ----------------------------------------------------------------------------- scenarios replayed
+# ----------------------------------------------------------------------------- scenarios replayed; who is stuck (§6.4.2.4)
 def replay_config(scenarios: list[Scenario], sensor: str = "full", sensor_range: int = 3, sensor_failure: float = 0.0,
                   observation: dict | None = None) -> EnvConfig:
     """Worlds that replay the given scenarios as they are (maps, starts, coverage), as many agents as the most starts,
