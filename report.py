@@ -68,6 +68,7 @@ SCRIPTS = {"rainbow_cpp": "rainbow_cpp.py", "sensors": "rainbow_cpp.py", "rainbo
            "scale_figures": "rainbow_cpp.py", "td_finetune": "rainbow_cpp.py"}
 LEARNING_RATE_SWEEP = "learning_rate_sweep.json"  # benchmarks/learning_rate.py's JSON, read when present
 LEARNING_RATE_FIG68 = "learning_rate_fig68.json"  # the same with --network fig6.8, read when present
+LEARNING_RATE_MARL = "learning_rate_marl.json"  # the same with --trainer rainbow_marl, read when present
 SCALE_REFERENCES = ("greedy", "greedy-far-first", "lkh")  # planners drawn beside the scale run's curve (and the model)
 TD_REFERENCES = ("greedy-far-first", "rainbow")  # scale_references drawn beside the TD fine-tuning's curve
 # docs/experiments.md's fresh per-family maps: map k of size z of the f-th family drawn with seed
@@ -177,7 +178,8 @@ def load_results(*folders: str) -> dict:
         raise ValueError(f"{folders[-1]}: no {PARTS['classical']}; run `python report.py collect --out {folders[-1]}`")
     for part, path in results["paths"].items():
         results[part] = None if path is None else read_json(path)
-    for key, name in (("learning_rate", LEARNING_RATE_SWEEP), ("learning_rate_fig68", LEARNING_RATE_FIG68)):
+    for key, name in (("learning_rate", LEARNING_RATE_SWEEP), ("learning_rate_fig68", LEARNING_RATE_FIG68),
+                      ("learning_rate_marl", LEARNING_RATE_MARL)):
         results["paths"][key] = find(name)
         results[key] = None if results["paths"][key] is None else read_json(results["paths"][key])
     runs = find(os.path.join("tabular", "fig5_4"))
@@ -1276,18 +1278,27 @@ def learning_rate_lines(sweep: dict | None) -> list[str]:
     if sweep is None:
         return [f"*Not collected:* no `{LEARNING_RATE_SWEEP}` here; `python benchmarks/learning_rate.py --out "
                 f"results/{LEARNING_RATE_SWEEP}` fills it in (about 10 minutes a rate on one core)."]
+    team = sweep.get("trainer") == "rainbow_marl"
+    score = "time_save" if team else "overlap"
     rates = dict(sorted(sweep["rates"].items(), key=lambda kv: float(kv[0])))
-    steps = [s for s, _ in next(iter(rates.values()))["overlap"]]
-    rows = [[rate, *[f"{v:.3f}" for _, v in r["overlap"]], f"{r['heuristic_overlap'][-1][1]:.3f}",
+    steps = [s for s, _ in next(iter(rates.values()))[score]]
+    rows = [[rate, *[f"{v:.3f}" for _, v in r[score]], f"{r[f'heuristic_{score}'][-1][1]:.3f}",
              f"{r['heuristic_share'][-1][1]:.2f}", f"{r['q_values'][-1][1]:.2f}" if r["q_values"] else "—"]
             for rate, r in rates.items()]
     network = sweep["flags"][sweep["flags"].index("--network") + 1]
-    return [f"Learning rate (`python benchmarks/learning_rate.py`), the {network} network: Table 6.2's stages from fi1 "
-            f"at {sweep['stage_steps_scale']:g} of their steps ({sweep['total_steps']:,} steps, seed {sweep['seed']}), "
-            "the scale run's other flags; mean overlap of the greedy policy with the fallback on held-out cpp_eval maps "
-            "up to the stage's size, at each evaluation:", "",
-            table(["learning rate", *[f"{s:,}" for s in steps], "heuristic, last maps", "fallback share, last",
-                   "mean Q, last"], rows)]
+    if team:
+        head = (f"Learning rate of the team trainer (`python benchmarks/learning_rate.py --trainer rainbow_marl`), the "
+                f"{network} network from scratch: its stages n2_env1-2 (up to two agents) at "
+                f"{sweep['stage_steps_scale']:g} of their steps ({sweep['total_steps']:,} steps, seed {sweep['seed']}), "
+                "the dissertation's random-tie heuristic; mean time-save factor of the greedy policy with the fallback "
+                "on held-out marl_eval maps up to the stage's size, at each evaluation:")
+    else:
+        head = (f"Learning rate (`python benchmarks/learning_rate.py`), the {network} network: Table 6.2's stages from fi1 "
+                f"at {sweep['stage_steps_scale']:g} of their steps ({sweep['total_steps']:,} steps, seed {sweep['seed']}), "
+                "the scale run's other flags; mean overlap of the greedy policy with the fallback on held-out cpp_eval "
+                "maps up to the stage's size, at each evaluation:")
+    return [head, "", table(["learning rate", *[f"{s:,}" for s in steps], "heuristic, last maps",
+                             "fallback share, last", "mean Q, last"], rows)]
 
 
 def scale_lines(scale: dict | None, refs: dict | None) -> list[str]:
@@ -1497,9 +1508,10 @@ def render(results: dict) -> str:
         td_finetune = td_finetune_lines(results["td_finetune"], results["scale_references"])
     with reading(paths["learning_rate"] or "the learning-rate sweep"):
         scale += ["", *learning_rate_lines(results["learning_rate"])]
-    if results["learning_rate_fig68"] is not None:
-        with reading(paths["learning_rate_fig68"]):
-            scale += ["", *learning_rate_lines(results["learning_rate_fig68"])]
+    for key in ("learning_rate_fig68", "learning_rate_marl"):
+        if results[key] is not None:
+            with reading(paths[key]):
+                scale += ["", *learning_rate_lines(results[key])]
     return "\n".join([
         "# Results", "",
         "Regenerated by `python report.py --overwrite` (`python report.py render` rewrites this file from the JSON beside it "

@@ -4,6 +4,7 @@ import.
 """
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
@@ -45,3 +46,15 @@ def test_benchmark_runs(tmp_path, script):
     assert done.returncode == 0, done.stderr[-3000:]
     assert "Traceback" not in done.stderr and done.stdout.strip(), done.stderr[-3000:]
     assert git_status() == before  # nothing under the repository: the outputs went to the temporary folder
+
+
+def test_the_learning_rate_sweep_of_the_team_trainer_records_its_time_save(tmp_path):
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONDONTWRITEBYTECODE": "1"}
+    done = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "learning_rate.py"), "--trainer", "rainbow_marl",
+                           *TINY["learning_rate.py"]], cwd=tmp_path, env=env, capture_output=True, text=True,
+                          timeout=180)
+    assert done.returncode == 0, done.stderr[-3000:]
+    sweep = json.loads((tmp_path / "lr.json").read_text())
+    rate = sweep["rates"]["0.0005"]
+    assert sweep["trainer"] == "rainbow_marl" and "--init-from" in sweep["flags"]  # from scratch
+    assert rate["time_save"] and len(rate["time_save"]) == len(rate["heuristic_time_save"])

@@ -894,3 +894,24 @@ def test_the_td_finetuning_not_collected_says_how_to_collect_it():
     results["td_finetune"] = None
     section = report.render(results).split("## TD fine-tuning of the shipped model\n\n", 1)[1].split("\n\n## ", 1)[0]
     assert section == line[0]
+
+
+# ----------------------------------------------------------------------------- learning-rate sweeps
+def _sweep(trainer: str | None, score: str) -> dict:
+    """A hand-made benchmarks/learning_rate.py JSON: two rates, two evaluations each."""
+    rate = {score: [(25000, 1.7), (50000, 1.65)], f"heuristic_{score}": [(25000, 0.2), (50000, 0.22)],
+            "completion": [(25000, 1.0), (50000, 1.0)], "heuristic_share": [(25000, 0.4), (50000, 0.38)],
+            "q_values": [(50000, -12.5)]}
+    fast = {**rate, score: [(25000, 0.26), (50000, 0.1)], "q_values": []}
+    return {**({"trainer": trainer} if trainer else {}), "flags": ["--network", "compact"], "stage_steps_scale": 0.05,
+            "total_steps": 150000, "seed": 1, "rates": {"0.0005": fast, "5e-05": rate}}
+
+
+@pytest.mark.parametrize("trainer, score, words", [(None, "overlap", "mean overlap of the greedy policy"),
+                                                   ("rainbow_marl", "time_save", "mean time-save factor")])
+def test_a_learning_rate_sweep_renders_one_row_a_rate(trainer, score, words):
+    text = "\n".join(report.learning_rate_lines(_sweep(trainer, score)))
+    assert words in text and ("--trainer rainbow_marl" in text) == (trainer is not None)
+    assert "| 5e-05 | 1.700 | 1.650 | 0.220 | 0.38 | -12.50 |" in text  # the smaller rate first
+    assert "| 0.0005 | 0.260 | 0.100 | 0.220 | 0.38 | — |" in text
+    assert "| learning rate | 25,000 | 50,000 | heuristic, last maps |" in text
