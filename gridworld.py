@@ -2811,8 +2811,9 @@ class StuckWatch:
 
     def restart(self, core: GridWorldCore, worlds: np.ndarray) -> None:
         self.since_new[worlds] = self.times_stuck[worlds] = self.owed[worlds] = 0
+        cells = core.agent_cells()[worlds]
         for h in self.history:
-            h[worlds] = core.agent_cells()[worlds]
+            h[worlds] = cells
 
 
 # ----------------------------------------------------------------------------- spaces

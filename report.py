@@ -405,15 +405,6 @@ def fresh_episodes() -> tuple[list[tuple[str, gridworld.Scenario]], list[str]]:
     return episodes, [families[f] for f, _, _ in keys]
 
 
-def policy_rows(q, episodes: list[tuple[str, gridworld.Scenario]], fallback: bool) -> list[dict]:
-    """A rainbow_cpp network (noise off) on every episode in one batched rollout (evaluate.run_rainbow rolls out 64
-    at a time), with evaluate.py's fallback (deterministic ties) or without it; each episode's metrics."""
-    import rainbow_cpp
-    m = rainbow_cpp.evaluate_policy(q, [s for _, s in episodes], q.network()["frames"], heuristic=fallback,
-                                    dead_ends_first=evaluate.Args.heuristic_dead_ends)
-    return [{k: v[j].item() for k, v in m.items()} for j in range(len(episodes))]
-
-
 def td_finetune_results(checkpoint: str, shipped: str, quiet: bool = False) -> dict:
     """The TD fine-tuning of the shipped model: its learning curve (scale_curve), then the greedy network of its
     committed checkpoint beside the shipped model (each with the fallback, and alone) and greedy-far-first on all of
@@ -423,14 +414,15 @@ def td_finetune_results(checkpoint: str, shipped: str, quiet: bool = False) -> d
         "slices": rainbow_cpp.CURVE_SLICES, "shipped": checkpoint_record(shipped, _model_json(shipped)),
         "fresh_recipe": {"seed": FRESH_SEED, "per_size": FRESH_PER_SIZE, "sizes": [FRESH_SIZES[0], FRESH_SIZES[-1]],
                          "obstacles": FRESH_OBSTACLES}}
-    models = {"fine_tuned": rainbow_cpp.load_policy(checkpoint), "shipped": rainbow_cpp.load_policy(shipped)}
+    models = {"fine_tuned": checkpoint, "shipped": shipped}
     sets = {"structured_eval": structured_eval_episodes(), "fresh": fresh_episodes()}
     with _bar(len(sets) * (2 * len(models) + 1), "td_finetune", quiet) as bar:
         for name, (episodes, families) in sets.items():
             result[name] = {"maps": {f: families.count(f) for f in dict.fromkeys(families)}}
-            for key, q in models.items():
+            for key, model in models.items():
                 for suffix, fallback in (("", True), ("_alone", False)):
-                    result[name][key + suffix] = by_family(policy_rows(q, episodes, fallback), families)
+                    args = evaluate.Args(policy="rainbow", checkpoint=model, heuristic=fallback, quiet=quiet)
+                    result[name][key + suffix] = by_family(evaluate.run_rainbow(args, episodes), families)
                     bar.update()
             result[name]["greedy_far_first"] = by_family(evaluate.run_planner("greedy-far-first", episodes), families)
             bar.update()
