@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import datetime
 import fcntl
 import functools
 import hashlib
@@ -700,6 +701,188 @@ def resumed_flags(args: Any, saved: dict, source: str, own: tuple, replaceable: 
             raise ValueError(f"--{name.replace('_', '-')} {getattr(args, name)} contradicts {source} "
                              f"({name.replace('_', ' ')} {value}): a resumed run keeps its flags{may}")
     return kept
+
+
+CHECKPOINT_KEYS = ("model", "optimizer", "global_step", "stage", "wall", "numpy_rng", "torch_rng")  # a training state
+RUN_FLAGS = ("exp_name", "run_name", "resume", "threads", "cuda", "torch_deterministic", "track", "wandb_project_name",
+             "wandb_entity", "quiet", "capture_video", "total_steps", "time_limit", "eval_every", "eval_maps",
+             "save_every", "curve_every", "export", "overwrite", "init_from")  # how a run goes, not what it learns
+
+
+def check_choices(args: Any) -> None:
+    """A flag typed Literal[...] (tyro checks the command line; this, Args built in code) outside its choices is a
+    one-line error."""
+    import typing
+
+    def choices(kind) -> tuple:  # Literal[...] itself, or inside `| None`
+        if typing.get_origin(kind) is typing.Literal:
+            return typing.get_args(kind)
+        return tuple(c for a in typing.get_args(kind) for c in choices(a))
+
+    for name, kind in typing.get_type_hints(type(args)).items():
+        offered, value = choices(kind), getattr(args, name)
+        if offered and value is not None and value not in offered:
+            raise ValueError(f"--{name.replace('_', '-')} must be one of {', '.join(offered)}, got {value!r}")
+
+
+def read_model(path: str) -> dict:
+    """A trainer's saved network (an export or a checkpoint); a missing, truncated or foreign file is a one-line
+    ValueError."""
+    if not os.path.exists(path):
+        raise ValueError(f"{path}: no such checkpoint")
+    blob = read_torch(path, "rainbow_cpp / rainbow_marl model")
+    if not isinstance(blob, dict) or not isinstance(blob.get("weights", blob.get("model")), dict):
+        raise ValueError(f"{path}: not a rainbow_cpp / rainbow_marl model (no weights in it)")
+    return blob
+
+
+def load_checkpoint(path: str, script: str) -> dict:
+    """A training checkpoint of `script` to resume, checked to hold a whole training state."""
+    if not os.path.exists(path):
+        raise ValueError(f"{path}: nothing to resume")
+    state = read_model(path)
+    missing = [k for k in CHECKPOINT_KEYS if k not in state]
+    if missing:
+        raise ValueError(f"{path}: not a training checkpoint (no {', '.join(missing)})")
+    if state.get("script", script) != script:  # older checkpoints do not say
+        raise ValueError(f"{path}: a {state['script']}.py run; resume it with {state['script']}.py")
+    return state
+
+
+def export_model(q: Any, args: Any, info: dict) -> None:
+    """Deployable weights at args.export (the noisy layers' means, fp16, with the network's record q.network()) and
+    beside them a JSON of the flags, the network and `info` (steps, provenance, parent model)."""
+    weights = {k: v.cpu().half() for k, v in q.state_dict().items() if "sigma" not in k and "eps" not in k}
+    save_torch(args.export, {"weights": weights, **q.network()}, "model", "--export")
+    write_json(os.path.splitext(args.export)[0] + ".json", {"args": dataclasses.asdict(args), "network": q.network(),
+                                                            **info}, "model", True, "--export")
+
+
+def save_run(run_dir: str, script: str, q: Any, target: Any, optimizer: Any, args: Any, rng: np.random.Generator,
+             global_step: int, stage_index: int, stage_name: str, wall: float, parent: dict | None, machine: dict,
+             curve: list | None = None) -> None:
+    """The checkpoint (the training state but the replay memory, with the curve so far) and the export with its JSON;
+    weights that are not finite (a diverged run) are a ValueError and the last checkpoint and export stay."""
+    import torch
+
+    if not all(torch.isfinite(v).all() for v in q.state_dict().values()):
+        raise ValueError(f"the network's weights are not finite at step {global_step:,} (training diverged); "
+                         f"{run_dir} keeps its last checkpoint and export")
+    save_torch(os.path.join(run_dir, "checkpoint.pt"), {
+        "model": q.state_dict(), "optimizer": optimizer.state_dict(), "global_step": global_step,
+        "stage": stage_index, "wall": wall, "args": dataclasses.asdict(args), "script": script,
+        "numpy_rng": rng.bit_generator.state, "torch_rng": torch.get_rng_state(), "parent": parent,
+        "target": target.state_dict(), "curve": curve or [], **q.network()})
+    threads = torch.get_num_threads()
+    export_model(q, args, {
+        "global_step": global_step, "stage": stage_name, "wall_seconds": round(wall),
+        "machine": f"{machine['cores']}-core {machine['cpu']}, {threads} torch thread(s)", "torch_threads": threads,
+        "provenance": {**machine, "torch_threads": threads, "device": str(device_of(q)), "env_steps": global_step,
+                       "wall_seconds": round(wall, 1),
+                       "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")},
+        "parent": parent})
+
+
+def load_mean_weights(q: Any, blob: dict, path: str, script: str) -> Any:
+    """q with the mean weights of a file read by read_model (its noisy layers' sigmas stay), checked to fit q and to
+    be finite, in one-line ValueErrors; noise off, in eval mode."""
+    import torch
+
+    weights = blob.get("weights", blob.get("model"))
+    differ = shapes_differ(*({k: tuple(v.shape) for k, v in w.items() if "sigma" not in k and "eps" not in k}
+                             for w in (q.state_dict(), weights)))
+    if differ:
+        raise ValueError(f"{path}: weights do not match {script}.py's network ({differ}); a model of a changed copy of "
+                         "the trainer: evaluate.py --trainer COPY.py")
+    try:
+        q.load_state_dict({k: v.float() for k, v in weights.items()}, strict=False)
+    except UNREADABLE as e:
+        raise ValueError(f"{path}: weights do not match this network ({reason(e)})") from None
+    if not all(torch.isfinite(v).all() for v in q.state_dict().values()):
+        raise ValueError(f"{path}: its weights are not finite (the run that made it diverged)")
+    q.reset_noise(False)
+    return q.eval()
+
+
+def check_network_size(build: Any, flags: str) -> None:
+    """A one-line error, before any memory is taken, when the network `build()` makes cannot be described or its
+    online and target copies with Adam's two moments (16 bytes a weight) exceed this machine's memory."""
+    import torch
+
+    try:
+        with torch.device("meta"):
+            weights = sum(w.numel() for w in build().parameters())
+    except RuntimeError as e:  # a shape past what torch can describe
+        raise ValueError(f"the network cannot be built ({reason(e)}); see {flags}") from None
+    fits_in_memory(16 * weights, f"the network ({weights:,} weights; {flags})")
+
+
+def restore_run(state: dict, path: str, q: Any, target: Any, optimizer: Any, rng: np.random.Generator,
+                learning_rate: float) -> None:
+    """A checkpoint's online and target weights, optimizer and random states put back, at `learning_rate` (the
+    flag's, not the saved one: a diverged run resumes slower); a state that does not fit is a one-line error."""
+    import torch
+
+    try:
+        q.load_state_dict(state["model"])
+        target.load_state_dict(state.get("target") or state["model"])
+        optimizer.load_state_dict(state["optimizer"])
+        for group in optimizer.param_groups:
+            group["lr"] = learning_rate
+        rng.bit_generator.state = state["numpy_rng"]
+        torch.set_rng_state(state["torch_rng"])
+    except UNREADABLE as e:
+        raise ValueError(f"{path}: does not fit this run ({reason(e)})") from None
+
+
+def summary_writer(args: Any, run_dir: str) -> Any:
+    """CleanRL's logging: a TensorBoard SummaryWriter in run_dir with the flags as its hyperparameters text and, with
+    --track, Weights & Biases mirroring it (close it with close_writer)."""
+    from torch.utils.tensorboard import SummaryWriter
+
+    flags = dataclasses.asdict(args)
+    if args.track:
+        import wandb
+
+        wandb.init(project=args.wandb_project_name, entity=args.wandb_entity, sync_tensorboard=True, config=flags,
+                   name=os.path.basename(run_dir), dir=run_dir, save_code=True)
+    writer = SummaryWriter(run_dir)
+    writer.add_text("hyperparameters", "|param|value|\n|-|-|\n" + "\n".join(f"|{k}|{v}|" for k, v in flags.items()))
+    return writer
+
+
+def close_writer(writer: Any, track: bool) -> None:
+    """The end of summary_writer's logging (and of its Weights & Biases run)."""
+    writer.close()
+    if track:
+        import wandb
+
+        wandb.finish()
+
+
+def progress_bar(total: int, initial: int, quiet: bool):
+    """A tqdm bar over environment steps; off with --quiet or when stdout is not a terminal."""
+    from tqdm import tqdm
+
+    return tqdm(total=total, initial=initial, unit="step", unit_scale=True, dynamic_ncols=True,
+                disable=quiet or not sys.stdout.isatty())
+
+
+def device_of(q: Any):
+    """Where a network's weights live (the CPU for one without any)."""
+    import torch
+
+    return next(q.parameters(), torch.empty(0)).device
+
+
+def to_torch(maps: np.ndarray, extras: np.ndarray, device: Any = None) -> tuple:
+    """A stack's maps and extras as tensors, on `device` (default: the CPU, without a copy)."""
+    import torch
+
+    maps, extras = torch.from_numpy(np.ascontiguousarray(maps)), torch.from_numpy(extras)
+    if device is None or device.type == "cpu":
+        return maps, extras
+    return maps.to(device, non_blocking=True), extras.to(device, non_blocking=True)
 
 
 # ----------------------------------------------------------------------------- maps on disk
@@ -2778,6 +2961,15 @@ def world_paths(cells: list, steps: np.ndarray, active: np.ndarray) -> list[np.n
     return [path[:t + 1, b][:, active[b]].astype(np.int64) for b, t in enumerate(steps)]
 
 
+def observe(core: GridWorldCore, hint: bool = False, dead_ends_first: bool = True, far_first: bool = False) -> dict:
+    """Every agent's observation, agent-major (stream b * N + i is agent i of world b), as the trainers act and store
+    it; with `hint` also the deterministic heuristic's move on the agent's known map, which the agent could compute."""
+    obs = {k: v.reshape(-1, *v.shape[2:]) for k, v in core.observe().items()}
+    if hint:
+        obs["hint"] = heuristic_actions(core, False, dead_ends_first, far_first).reshape(-1)
+    return obs
+
+
 def stuck(since_new: np.ndarray, moved: np.ndarray, size: np.ndarray) -> np.ndarray:
     """§6.4.2.4 conditions 3-4, per agent: no new cell in more than M steps (M = map edge), or
     none and at most two cells of displacement in the last five steps."""
@@ -2816,6 +3008,67 @@ class StuckWatch:
             h[worlds] = cells
 
 
+def greedy_episodes(config: EnvConfig, scenarios: list[Scenario], act: Any, hint: bool = False, heuristic: bool = True,
+                    random_ties: bool = False, dead_ends_first: bool = True, far_first: bool = False,
+                    endgame: bool = False, action_loss: float = 0.0, faulty_at: float | None = None,
+                    trajectories: list | None = None, seed: int = 0) -> dict:
+    """A learned policy's evaluation (§6.5.2): each scenario once, with as many agents as it has starts, every agent
+    acting on its own observation through act(obs, restart, acting) -> the moves of the streams `acting` (obs as
+    observe() gives them, agent-major; `restart` marks each stream's first frame). With `heuristic` an agent that is
+    stuck (§6.4.2.4) hands over to the heuristic for as many new cells as it has been stuck this episode (§6.5.2.1)
+    and, with `endgame`, every agent does once no more cells are left than working agents. `action_loss`: chance an
+    agent misses its action and stays; `faulty_at`: the last agent freezes once this share of the points of interest
+    is covered (§7.5.3.3), and an episode ends, not completed, once the working agents have covered all they can
+    reach (`walled_off`: the frozen agent left cells no working agent reaches). `trajectories`, a list, gets each
+    episode's (T + 1, N, 2) cells. Returns per-episode arrays: the metrics, `steps`, `time_save`, `rho`, `agents`,
+    `truncated`, `heuristic_steps` (agent-steps of the heuristic) and, with `faulty_at`, `walled_off`."""
+    core = GridWorldCore(config, len(scenarios), seed=seed)
+    core.configure(scenarios=scenarios)
+    core.reset()
+    B, N = core.B, core.N
+    rng = np.random.default_rng(seed)
+    restart = np.ones(B * N, bool)
+    done, truncated, faulty = (np.zeros(B, bool) for _ in range(3))
+    unreachable = np.zeros(B, np.int64)  # points of interest behind the frozen agent, counted when it freezes
+    watch = StuckWatch(core)
+    steps, used = np.zeros(B, np.int64), np.zeros(B, np.int64)  # each world's own, not the waits after its end
+    cells = [core.agent_cells()]
+    while not done.all():
+        working = core.active & ~core.frozen & ~done[:, None]
+        acting = np.flatnonzero(working.ravel())  # finished worlds and absent agents cost nothing
+        action = np.full(B * N, WAIT)
+        action[acting] = act(observe(core, hint, dead_ends_first, far_first), restart, acting)
+        action, restart = action.reshape(B, N), np.zeros(B * N, bool)
+        if heuristic:
+            fallback = watch.hand_over(core, working)
+            if endgame:
+                fallback |= (core.remaining <= working.sum(1))[:, None] & working
+            if fallback.any():
+                action = np.where(fallback, heuristic_actions(core, random_ties, dead_ends_first, far_first), action)
+            used += fallback.sum(1)
+        if action_loss:
+            action = np.where(rng.random((B, N)) < action_loss, WAIT, action)
+        ev = core.step(np.where(done[:, None], WAIT, action))
+        steps += ~done
+        watch.step(core, ev["new"])
+        if trajectories is not None:
+            cells.append(core.agent_cells())
+        truncated |= ev["truncated"] & ~done
+        done |= ev["terminated"] | ev["truncated"]
+        if faulty_at is not None:
+            due = np.flatnonzero(~faulty & ~done & (core.new_cells >= faulty_at * core.n_poi_start))
+            core.freeze(due, core.active[due].sum(1) - 1)
+            faulty[due] = True
+            unreachable[due] = core.unreachable_poi(due)
+            done |= (unreachable > 0) & (core.remaining <= unreachable)  # all the working agents reach is covered
+    if trajectories is not None:
+        trajectories.extend(world_paths(cells, steps, core.active))
+    m = core.metrics()
+    return {**m, "steps": steps, "time_save": steps / np.maximum(m["n_poi_start"], 1),
+            "rho": steps / np.maximum(core.n_free, 1), "agents": core.active.sum(1), "truncated": truncated,
+            "heuristic_steps": used, **({"walled_off": unreachable > 0} if faulty_at is not None else {})}
+
+
 # ----------------------------------------------------------------------------- spaces
 def agent_observation_space(cfg: EnvConfig) -> spaces.Space:
     """One agent's observation space under `cfg`: the shapes a trainer sizes its network by."""
@@ -2830,6 +3083,13 @@ def agent_observation_space(cfg: EnvConfig) -> spaces.Space:
         "last_action": spaces.Box(0, 1, (5,), np.float32),
         "battery": spaces.Box(0, 1, (BATTERY_FEATURES,), np.float32),
     })
+
+
+def frame_shape(observation: dict) -> tuple[int, int]:
+    """(channels, view) of one map frame of an observation, given by its EnvConfig fields (observation, view_size,
+    the scales)."""
+    shape = agent_observation_space(EnvConfig(**observation))["map"].shape
+    return shape[0], shape[-1]
 
 
 def frame_features(obs: dict[str, np.ndarray]) -> np.ndarray:

@@ -12,13 +12,11 @@ ring segment per (world, agent). Rewards follow §7.3.3 and the number of agents
 """
 from __future__ import annotations
 
-import datetime
 import importlib.util
 import math
 import os
 import random
 import signal
-import sys
 import time
 from dataclasses import asdict, dataclass, replace
 from typing import Literal
@@ -27,7 +25,6 @@ import numpy as np
 import torch
 import torch.nn as nn
 import torch.nn.functional as F
-from tqdm import tqdm
 
 import gridworld
 
@@ -73,7 +70,7 @@ class Args:
     """stop after this many environment steps (0: the whole schedule; past it, its last stage goes on)"""
     time_limit: float = 0.0
     """stop after this many minutes of training wall time, resumed time included (0: no limit)"""
-    reward_structure: str = "size_invariant"
+    reward_structure: Literal["competitive", "cooperative", "size_invariant"] = "size_invariant"
     """§7.3.3, for every stage: competitive (eq. 7.3), cooperative (eq. 7.4) or size_invariant (eq. 7.5)"""
     gain: float = 0.25
     """the gain K of the others' new cells in eqs. 7.4-7.5"""
@@ -146,7 +143,7 @@ class Args:
     """give the network the deterministic heuristic's move as an input (not in the dissertation; a model keeps it)"""
     heuristic_random_ties: bool = False
     """the heuristic breaks ties at random (§6.3.1) instead of by the first cell"""
-    teacher: str = "heuristic"
+    teacher: Literal["heuristic", "rollout"] = "heuristic"
     """who acts under §6.4.2.4's conditions and labels for --margin-loss: heuristic (with claims), or rollout (the
     multiagent rollout of the heuristic)"""
     heuristic_dead_ends: bool = True
@@ -189,10 +186,6 @@ SCALE_KEYS = ("scales", "scale_factor", "scale_view")  # the multiscale observat
 HINTS = LAST_ACTIONS  # --hint: the heuristic's proposed move, one-hot with WAIT (no target) as in the last action
 COMPACT = {"hidden": 256, "frame_stack": 3, "conv_width": 32,
            **{k: getattr(gridworld.EnvConfig(), k) for k in SCALE_KEYS}}  # the compact network's defaults
-RUN_FLAGS = ("exp_name", "run_name", "resume", "threads", "cuda", "torch_deterministic", "track", "wandb_project_name",
-             "wandb_entity", "quiet", "capture_video", "total_steps", "time_limit", "eval_every", "eval_maps",
-             "save_every", "curve_every", "export", "overwrite", "init_from")  # how a run goes, not what it learns
-CHECKPOINT_KEYS = ("model", "optimizer", "global_step", "stage", "wall", "numpy_rng", "torch_rng")
 
 
 # ----------------------------------------------------------------------------- the network
@@ -290,7 +283,7 @@ class CompactQNetwork(Dueling):
         self.far_first = False  # the hint's heuristic takes far-first ties (build_network sets it from the spec)
         self.scales, self.scale_factor, self.scale_view = scales, scale_factor, scale_view
         self.view = scale_view
-        channels, _ = frame_shape({"observation": "multiscale", "scales": scales, "scale_factor": scale_factor,
+        channels, _ = gridworld.frame_shape({"observation": "multiscale", "scales": scales, "scale_factor": scale_factor,
                                    "scale_view": scale_view})
         self.per_scale = channels // scales
         layers, n_in, size = [], channels * frames, scale_view
@@ -333,17 +326,6 @@ def observation_settings(spec: dict) -> dict:
     if spec.get("network", "fig6.8") == "fig6.8":
         return {"observation": "deep", **DEEP}
     return {"observation": "multiscale", **{k: spec[k] for k in SCALE_KEYS}}
-
-
-def frame_shape(observation: dict) -> tuple[int, int]:
-    """(channels, view) of one map frame of an observation (observation_settings' fields), from gridworld."""
-    shape = gridworld.agent_observation_space(gridworld.EnvConfig(**observation))["map"].shape
-    return shape[0], shape[-1]
-
-
-def device_of(q: nn.Module) -> torch.device:
-    """Where a network's weights live (the CPU for one without any)."""
-    return next(q.parameters(), torch.empty(0)).device
 
 
 # ----------------------------------------------------------------------------- replay memory
@@ -541,24 +523,6 @@ class Stacker:
         return self.maps.reshape(n, -1, *self.maps.shape[-2:]), np.concatenate(extras, 1)
 
 
-def observe(core: gridworld.GridWorldCore, hint: bool = False, dead_ends_first: bool = True,
-            far_first: bool = False) -> dict:
-    """Every agent's observation, agent-major (stream b * N + i is agent i of world b); with `hint` also the
-    deterministic heuristic's move on the agent's known map, which the agent itself could compute."""
-    obs = {k: v.reshape(-1, *v.shape[2:]) for k, v in core.observe().items()}
-    if hint:
-        obs["hint"] = gridworld.heuristic_actions(core, False, dead_ends_first, far_first).reshape(-1)
-    return obs
-
-
-def to_torch(maps: np.ndarray, extras: np.ndarray, device: torch.device | None = None):
-    """A stack's maps and extras as tensors, on `device` (default: the CPU, without a copy)."""
-    maps, extras = torch.from_numpy(np.ascontiguousarray(maps)), torch.from_numpy(extras)
-    if device is None or device.type == "cpu":
-        return maps, extras
-    return maps.to(device, non_blocking=True), extras.to(device, non_blocking=True)
-
-
 def large_margin_loss(q_all: torch.Tensor, label: torch.Tensor, margin: float) -> torch.Tensor:
     """DQfD's J_E = max_a [Q(s, a) + l(a_E, a)] - Q(s, a_E), l = margin except at a_E, averaged
     over the states with a label (label -1: none)."""
@@ -573,7 +537,7 @@ def learn(q: QNetwork, target: QNetwork, optimizer: torch.optim.Optimizer, repla
           diagnose: bool = False) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None, dict | None]:
     """One gradient step on a prioritized batch: the double-DQN TD loss (plus --margin-loss times the margin loss),
     new priorities, the soft target update (eq. 6.19) and fresh noise; the losses and, with `diagnose`, diagnostics."""
-    device = device_of(q)
+    device = gridworld.device_of(q)
     idx, (m_, e_, nm, ne, a_, ret, boot, weight, *label) = replay.batch(args.batch_size, beta, rng, device,
                                                                         labels=bool(args.margin_loss))
     with torch.no_grad():  # double DQN: the online net picks, the target net values
@@ -620,25 +584,6 @@ def diagnostics_of(q: nn.Module, maps: torch.Tensor, extras: torch.Tensor, q_all
 
 
 # ----------------------------------------------------------------------------- files
-def export(q: QNetwork, args: Args, info: dict) -> None:
-    """Deployable weights at args.export (the noisy layers' means, fp16, with the network's record) and beside them a
-    JSON of the flags, the network and `info` (steps, provenance, parent model)."""
-    weights = {k: v.cpu().half() for k, v in q.state_dict().items() if "sigma" not in k and "eps" not in k}
-    gridworld.save_torch(args.export, {"weights": weights, **q.network()}, "model", "--export")
-    gridworld.write_json(os.path.splitext(args.export)[0] + ".json", {"args": asdict(args), "network": q.network(),
-                                                                        **info}, "model", True, "--export")
-
-
-def read_model(path: str) -> dict:
-    """A saved network (an export or a checkpoint); a missing, truncated or foreign file is a one-line ValueError."""
-    if not os.path.exists(path):
-        raise ValueError(f"{path}: no such checkpoint")
-    blob = gridworld.read_torch(path, "rainbow_cpp / rainbow_marl model")
-    if not isinstance(blob, dict) or not isinstance(blob.get("weights", blob.get("model")), dict):
-        raise ValueError(f"{path}: not a rainbow_cpp / rainbow_marl model (no weights in it)")
-    return blob
-
-
 def network_of(blob: dict, path: str) -> dict:
     """The network a saved file needs (its network() record, else its flags), checked against gridworld's observation."""
     flags = blob["args"] if isinstance(blob.get("args"), dict) else {}
@@ -667,46 +612,18 @@ def network_of(blob: dict, path: str) -> dict:
 
 def policy_from(blob: dict, path: str) -> QNetwork:
     """The network of a file read by read_model, with its mean weights and noise off."""
-    spec = network_of(blob, path)
-    q = build_network(spec, 0.0)
-    weights = blob.get("weights", blob.get("model"))
-    differ = gridworld.shapes_differ(*({k: tuple(v.shape) for k, v in w.items() if "sigma" not in k and "eps" not in k}
-                                       for w in (q.state_dict(), weights)))
-    if differ:
-        raise ValueError(f"{path}: weights do not match {SCRIPT}.py's network ({differ}); a model of a changed copy of "
-                         "the trainer: evaluate.py --trainer COPY.py")
-    try:
-        q.load_state_dict({k: v.float() for k, v in weights.items()}, strict=False)
-    except gridworld.UNREADABLE as e:
-        raise ValueError(f"{path}: weights do not match this network ({gridworld.reason(e)})") from None
-    if not all(torch.isfinite(v).all() for v in q.state_dict().values()):
-        raise ValueError(f"{path}: its weights are not finite (the run that made it diverged)")
-    q.reset_noise(False)
-    return q.eval()
+    return gridworld.load_mean_weights(build_network(network_of(blob, path), 0.0), blob, path, SCRIPT)
 
 
 def load_policy(path: str) -> QNetwork:
     """A deployable export (or a training checkpoint) as a network with noise off."""
-    return policy_from(read_model(path), path)
-
-
-def load_checkpoint(path: str) -> dict:
-    """A training checkpoint to resume, checked to hold a whole training state."""
-    if not os.path.exists(path):
-        raise ValueError(f"{path}: nothing to resume")
-    state = read_model(path)
-    missing = [k for k in CHECKPOINT_KEYS if k not in state]
-    if missing:
-        raise ValueError(f"{path}: not a training checkpoint (no {', '.join(missing)})")
-    if state.get("script", SCRIPT) != SCRIPT:  # older checkpoints do not say
-        raise ValueError(f"{path}: a {state['script']}.py run; resume it with {state['script']}.py")
-    return state
+    return policy_from(gridworld.read_model(path), path)
 
 
 # ----------------------------------------------------------------------------- the run
 def check_flags(args: Args) -> None:
-    """The flags both trainers share: a count or a chance out of range, a number that is not finite, more threads than
-    cores or an export outside models/ and runs/ is a one-line error."""
+    """The flags both trainers share: a count or a chance out of range, a number that is not finite, a choice not
+    offered, more threads than cores or an export outside models/ and runs/ is a one-line error."""
     gridworld.check_ranges(args, {"seed": 0, "total_steps": 0, "num_envs": 1, "buffer_size": 1, "batch_size": 1,
                                   "learning_starts": 0, "demonstration_steps": 0, "n_step": 1, "challenging_size": 1,
                                   "eval_every": 0, "eval_maps": 1, "save_every": 0, "threads": 0, "hidden": 1,
@@ -719,8 +636,7 @@ def check_flags(args: Args) -> None:
         raise ValueError(f"--threads {args.threads}: this machine has {os.cpu_count()} cores")
     if args.track and importlib.util.find_spec("wandb") is None:
         raise ValueError("--track needs Weights & Biases: pip install wandb")
-    if args.network is not None and args.network not in NETWORKS:
-        raise ValueError(f"--network must be one of {', '.join(NETWORKS)}, got {args.network!r}")
+    gridworld.check_choices(args)
     if args.export:  # before training, not at the first save
         gridworld.check_export(args.export, f"{SCRIPT}.py")
 
@@ -730,8 +646,8 @@ def settle_flags(args: Args) -> Args:
     run's rate); a rate set nowhere is LEARNING_RATE."""
     if args.resume:
         path = os.path.join("runs", gridworld.run_folder(args.run_name, args.exp_name, args.seed, True), "checkpoint.pt")
-        saved = load_checkpoint(path).get("args") or {}
-        args = replace(args, **gridworld.resumed_flags(args, saved, path, RUN_FLAGS, ("learning_rate",)))
+        saved = gridworld.load_checkpoint(path, SCRIPT).get("args") or {}
+        args = replace(args, **gridworld.resumed_flags(args, saved, path, gridworld.RUN_FLAGS, ("learning_rate",)))
     return args if args.learning_rate is not None else replace(args, learning_rate=LEARNING_RATE)
 
 
@@ -782,8 +698,8 @@ def start_run(args: Args, n_stages: int) -> tuple:
     run_name = gridworld.run_folder(args.run_name, args.exp_name, args.seed, args.resume)
     run_dir = os.path.join("runs", run_name)
     checkpoint = os.path.join(run_dir, "checkpoint.pt")
-    state = load_checkpoint(checkpoint) if args.resume else None
-    warm = read_model(args.init_from) if args.init_from and not args.resume else None
+    state = gridworld.load_checkpoint(checkpoint, SCRIPT) if args.resume else None
+    warm = gridworld.read_model(args.init_from) if args.init_from and not args.resume else None
     if state is not None:
         args = with_network(args, network_of(state, checkpoint), checkpoint)
         if args.hint and not network_of(state, checkpoint)["hint"]:
@@ -796,40 +712,24 @@ def start_run(args: Args, n_stages: int) -> tuple:
     args = replace(args, run_name=run_name, export=args.export or os.path.join(run_dir, f"{SCRIPT}.pt"))
     device = torch.device("cuda" if args.cuda and torch.cuda.is_available() else "cpu")
     spec = {**asdict(args), "frames": args.frame_stack, "view": VIEW, "far_first": args.heuristic_far_first}
-    try:
-        with torch.device("meta"):  # its size before any memory is taken: online, target and Adam's two moments
-            weights = sum(w.numel() for w in build_network(spec, args.sigma0).parameters())
-    except RuntimeError as e:  # a shape past what torch can describe
-        raise ValueError(f"the network cannot be built ({gridworld.reason(e)}); see --hidden, --conv-width, "
-                         "--frame-stack") from None
-    gridworld.fits_in_memory(16 * weights, f"the network ({weights:,} weights; --hidden, --conv-width, --frame-stack)")
+    gridworld.check_network_size(lambda: build_network(spec, args.sigma0), "--hidden, --conv-width, --frame-stack")
     q, target = (build_network(spec, args.sigma0).to(device) for _ in range(2))
     optimizer = torch.optim.Adam(q.parameters(), lr=args.learning_rate, eps=args.adam_eps,
                                  fused=True)  # fused: ~7x faster than the per-tensor loop on CPU
-    progress, parent, target_state = (0, 0, 0.0, []), None, None  # a fresh run
+    progress, parent = (0, 0, 0.0, []), None  # a fresh run
     if state is not None:
         if not (isinstance(state["stage"], int) and 0 <= state["stage"] < n_stages):
             raise ValueError(f"{checkpoint}: stage {state['stage']} of a curriculum of {n_stages} stages")
-        try:
-            q.load_state_dict(state["model"])
-            optimizer.load_state_dict(state["optimizer"])
-            for group in optimizer.param_groups:  # the flag's rate, not the saved one: a diverged run resumes slower
-                group["lr"] = args.learning_rate
-            rng.bit_generator.state = state["numpy_rng"]
-            torch.set_rng_state(state["torch_rng"])
-        except gridworld.UNREADABLE as e:
-            raise ValueError(f"{checkpoint}: does not fit this run ({gridworld.reason(e)})") from None
+        gridworld.restore_run(state, checkpoint, q, target, optimizer, rng, args.learning_rate)
         progress = (state["global_step"], state["stage"], state["wall"], list(state.get("curve", [])))
-        parent, target_state = state.get("parent"), state.get("target")
-    elif warm is not None:  # transfer (§7.4.2.2): the mean weights, fresh noise
-        fresh = q.state_dict()
-        q.load_state_dict({k: hinted(v, fresh[k]) for k, v in policy_from(warm, args.init_from).state_dict().items()}
-                          | {k: v for k, v in fresh.items() if "sigma" in k or "eps" in k})
-        parent = gridworld.lineage(args.init_from)
-    try:
-        target.load_state_dict(target_state or q.state_dict())
-    except gridworld.UNREADABLE as e:
-        raise ValueError(f"{checkpoint}: its target network does not fit this run ({gridworld.reason(e)})") from None
+        parent = state.get("parent")
+    else:
+        if warm is not None:  # transfer (§7.4.2.2): the mean weights, fresh noise
+            fresh = q.state_dict()
+            q.load_state_dict({k: hinted(v, fresh[k]) for k, v in policy_from(warm, args.init_from).state_dict().items()}
+                              | {k: v for k, v in fresh.items() if "sigma" in k or "eps" in k})
+            parent = gridworld.lineage(args.init_from)
+        target.load_state_dict(q.state_dict())
     return args, run_dir, q, target, optimizer, rng, progress, parent
 
 
@@ -840,46 +740,10 @@ def hinted(weight: torch.Tensor, fresh: torch.Tensor) -> torch.Tensor:
     return torch.cat([weight, torch.zeros(weight.shape[0], HINTS, dtype=weight.dtype)], 1)
 
 
-def save_run(run_dir: str, q: QNetwork, target: QNetwork, optimizer: torch.optim.Optimizer, args: Args,
-             rng: np.random.Generator, global_step: int, stage_index: int, stage_name: str, wall: float,
-             parent: dict | None, machine: dict, curve: list | None = None) -> None:
-    """The checkpoint (the training state but the replay memory, with the curve so far) and the export with its JSON;
-    weights that are not finite (a diverged run) are a ValueError and the last checkpoint and export stay."""
-    if not all(torch.isfinite(v).all() for v in q.state_dict().values()):
-        raise ValueError(f"the network's weights are not finite at step {global_step:,} (training diverged); "
-                         f"{run_dir} keeps its last checkpoint and export")
-    gridworld.save_torch(os.path.join(run_dir, "checkpoint.pt"), {
-        "model": q.state_dict(), "optimizer": optimizer.state_dict(), "global_step": global_step,
-        "stage": stage_index, "wall": wall, "args": asdict(args), "script": SCRIPT, "numpy_rng": rng.bit_generator.state,
-        "torch_rng": torch.get_rng_state(), "parent": parent, "target": target.state_dict(), "curve": curve or [],
-        **q.network()})
-    threads = torch.get_num_threads()
-    export(q, args, {
-        "global_step": global_step, "stage": stage_name, "wall_seconds": round(wall),
-        "machine": f"{machine['cores']}-core {machine['cpu']}, {threads} torch thread(s)", "torch_threads": threads,
-        "provenance": {**machine, "torch_threads": threads, "device": str(device_of(q)), "env_steps": global_step,
-                       "wall_seconds": round(wall, 1),
-                       "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")},
-        "parent": parent})
-
-
-def progress_bar(total: int, initial: int, quiet: bool) -> tqdm:
-    """A bar over environment steps; off with --quiet or when stdout is not a terminal."""
-    return tqdm(total=total, initial=initial, unit="step", unit_scale=True, dynamic_ncols=True,
-                disable=quiet or not sys.stdout.isatty())
 # ============================================================================= end of the shared code
 
 
 # ----------------------------------------------------------------------------- multi-agent helpers
-TEACHERS = ("heuristic", "rollout")  # --teacher
-
-
-def check_teacher(args: Args) -> None:
-    """--teacher out of range is a one-line error."""
-    if args.teacher not in TEACHERS:
-        raise ValueError(f"--teacher must be one of {', '.join(TEACHERS)}, got {args.teacher!r}")
-
-
 def team_rollout_labels(core: gridworld.GridWorldCore, label: np.ndarray, teach: np.ndarray,
                         args: Args) -> tuple[np.ndarray, np.ndarray]:
     """--teacher rollout: the heuristic's (B, N) labels with the multiagent rollout's in the worlds where the teacher
@@ -892,8 +756,6 @@ def team_rollout_labels(core: gridworld.GridWorldCore, label: np.ndarray, teach:
 
 
 def load_stages(args: Args) -> list[gridworld.EnvConfig]:
-    if args.reward_structure not in gridworld.STRUCTURES:
-        raise ValueError(f"--reward-structure must be one of {gridworld.STRUCTURES}, got {args.reward_structure!r}")
     if not 0.0 <= args.gain <= (1.0 if args.reward_structure == "size_invariant" else float("inf")):
         raise ValueError(f"--gain {args.gain}: needs 0 <= K (and K <= 1 for size_invariant, eq. 7.5)")
     if args.stages:
@@ -923,76 +785,29 @@ def evaluate_policy(q: QNetwork, scenarios: list, frames: int, sensor: str = "fu
                     sensor_failure: float = 0.0, heuristic: bool = True, random_ties: bool = False,
                     action_loss: float = 0.0, faulty_at: float | None = None, seed: int = 0,
                     dead_ends_first: bool = True, trajectories: list | None = None) -> dict:
-    """Decentralised execution (§7.4.1) of the deterministic policy (noise off) once on each
-    scenario, with as many agents as it has starts. Every agent acts on its own observation with
-    the same weights, so one batched forward pass equals N separate copies. With `heuristic` an
-    agent that is stuck (§6.4.2.4 conditions) hands over to the heuristic for as many new cells
-    as it has been stuck this episode, and every agent does once no more cells are left than
-    working agents. `action_loss`: chance an agent misses its action and stays; `faulty_at`:
-    the last agent freezes once this fraction of the points of interest is covered (§7.5.3.3).
-    Returns per-episode arrays: gridworld's metrics, `agents`, `truncated`,
-    `heuristic_steps` (agent-steps taken by the heuristic) and `walled_off` (the frozen agent left
-    uncovered cells no working agent can reach: no team completes such a map, and its episode ends, not
-    completed, once the working agents have covered every point of interest they can reach). A list given as
-    `trajectories` is extended with one (T + 1, N, 2) int array per scenario: the (row, col) of each of its N agents
-    at every step from the start, T that episode's own steps. The observation and the frame count are
-    the network's own (q.network(), on its device); `frames` counts only for a network without that
-    record."""
+    """Decentralised execution (§7.4.1) of the deterministic policy (noise off) once on each scenario, with as many
+    agents as it has starts: every agent acts on its own observation with the same weights, so one batched forward
+    pass equals N separate copies. With `heuristic` the fallback of §6.5.2.1, and every agent hands over once no more
+    cells are left than working agents; `action_loss` and `faulty_at` (§7.5.3.3) as gridworld.greedy_episodes, whose
+    per-episode arrays this returns. The observation and frames are the network's (`frames` only without a record)."""
     spec = q.network() if hasattr(q, "network") else {"frames": frames}
-    observation, frames, device = observation_settings(spec), spec["frames"], device_of(q)
-    core = gridworld.GridWorldCore(gridworld.replay_config(scenarios, sensor, sensor_range, sensor_failure, observation),
-                                   len(scenarios), seed=seed)
-    core.configure(scenarios=scenarios)
-    core.reset()
-    B, N = core.B, core.N
-    rng = np.random.default_rng(seed)
-    hint, far_first = bool(spec.get("hint")), bool(spec.get("far_first"))
-    stack = Stacker(B * N, frames, *frame_shape(observation)[::-1], hint=hint)
-    stack.push(observe(core, hint, dead_ends_first, far_first), np.ones(B * N, bool))
-    done, truncated, faulty = (np.zeros(B, bool) for _ in range(3))
-    unreachable = np.zeros(B, np.int64)  # points of interest behind the frozen agent, counted when it freezes
-    watch = gridworld.StuckWatch(core)
-    steps, used = np.zeros(B, np.int64), np.zeros(B, np.int64)  # each world's own, not the waits after its end
-    cells = [core.agent_cells()]
+    observation, device, hint = observation_settings(spec), gridworld.device_of(q), bool(spec.get("hint"))
+    config = gridworld.replay_config(scenarios, sensor, sensor_range, sensor_failure, observation)
+    stack = Stacker(len(scenarios) * config.number_agents, spec["frames"], *gridworld.frame_shape(observation)[::-1],
+                    hint=hint)
+
+    def act(obs, restart, acting):
+        stack.push(obs, restart)
+        maps, extras = stack.get()
+        return q(*gridworld.to_torch(maps[acting], extras[acting], device)).argmax(1).cpu().numpy()
+
     q.reset_noise(False)
     with torch.no_grad():
-        while not done.all():
-            working = core.active & ~core.frozen & ~done[:, None]
-            acting = np.flatnonzero(working.ravel())  # finished worlds and absent agents cost nothing
-            maps, extras = stack.get()
-            action = np.full(B * N, gridworld.WAIT)
-            action[acting] = q(*to_torch(maps[acting], extras[acting], device)).argmax(1).cpu().numpy()
-            action = action.reshape(B, N)
-            if heuristic:
-                endgame = (core.remaining <= working.sum(1))[:, None]
-                fallback = (watch.hand_over(core, working) | endgame) & working
-                if fallback.any():
-                    heuristic_moves = gridworld.heuristic_actions(core, random_ties, dead_ends_first, far_first)
-                    action = np.where(fallback, heuristic_moves, action)
-                used += fallback.sum(1)
-            if action_loss:
-                action = np.where(rng.random((B, N)) < action_loss, gridworld.WAIT, action)
-            ev = core.step(np.where(done[:, None], gridworld.WAIT, action))
-            steps += ~done
-            watch.step(core, ev["new"])
-            if trajectories is not None:
-                cells.append(core.agent_cells())
-            truncated |= ev["truncated"] & ~done
-            done |= ev["terminated"] | ev["truncated"]
-            if faulty_at is not None:
-                due = np.flatnonzero(~faulty & ~done & (core.new_cells >= faulty_at * core.n_poi_start))
-                core.freeze(due, core.active[due].sum(1) - 1)
-                faulty[due] = True
-                unreachable[due] = core.unreachable_poi(due)
-                done |= (unreachable > 0) & (core.remaining <= unreachable)  # all the working agents reach is covered
-            stack.push(observe(core, hint, dead_ends_first, far_first), np.zeros(B * N, bool))
+        m = gridworld.greedy_episodes(config, scenarios, act, hint, heuristic, random_ties, dead_ends_first,
+                                      bool(spec.get("far_first")), endgame=True, action_loss=action_loss,
+                                      faulty_at=faulty_at, trajectories=trajectories, seed=seed)
     q.reset_noise(True)
-    if trajectories is not None:
-        trajectories.extend(gridworld.world_paths(cells, steps, core.active))
-    m = core.metrics()
-    return {**m, "steps": steps, "time_save": steps / np.maximum(m["n_poi_start"], 1),
-            "rho": steps / np.maximum(core.n_free, 1), "agents": core.active.sum(1),
-            "truncated": truncated, "heuristic_steps": used, "walled_off": unreachable > 0}
+    return m
 
 
 # ----------------------------------------------------------------------------- training
@@ -1000,7 +815,6 @@ def main(args: Args) -> None:
     # TRY NOT TO MODIFY: flags, files read and seeding; nothing is written before all of them check out
     args = settle_flags(args)
     check_flags(args)
-    check_teacher(args)
     stages = load_stages(args)
     if args.buffer_size < 64 * args.num_envs * max(s.number_agents for s in stages):
         raise ValueError(f"--buffer-size {args.buffer_size}: need buffer_size >= 64 * num_envs * the most agents "
@@ -1008,32 +822,26 @@ def main(args: Args) -> None:
     eval_path = os.path.join(HERE, "maps", "marl_eval.npz")
     eval_set, eval_sizes = gridworld.load_dataset(eval_path), np.load(eval_path)["size"]
     args, run_dir, q, target, optimizer, rng, (global_step, stage_index, wall, _), parent = start_run(args, len(stages))
-    stages, device = observed(stages, args), device_of(q)  # the stages observed as the network needs
+    stages, device = observed(stages, args), gridworld.device_of(q)  # the stages observed as the network needs
     observation = observation_settings(asdict(args))
-    channels, view = frame_shape(observation)
+    channels, view = gridworld.frame_shape(observation)
     machine = gridworld.provenance(f"{SCRIPT}.py") | {"torch_version": torch.__version__}
     ends = np.cumsum([max(1, int(s.base_steps * args.stage_steps_scale)) for s in stages])
     total = int(args.total_steps or ends[-1])  # past the curriculum's end its last stage goes on
     B = args.num_envs
     lock = gridworld.lock_run(run_dir)  # held until this run ends
-    if args.track:  # CleanRL's way: W&B mirrors the TensorBoard events
-        import wandb
-        wandb.init(project=args.wandb_project_name, entity=args.wandb_entity, sync_tensorboard=True,
-                   config=asdict(args), name=os.path.basename(run_dir), dir=run_dir, save_code=True)
-    from torch.utils.tensorboard import SummaryWriter
-    writer = SummaryWriter(run_dir)
-    writer.add_text("hyperparameters", "|param|value|\n|-|-|\n" + "\n".join(f"|{k}|{v}|" for k, v in asdict(args).items()))
+    writer = gridworld.summary_writer(args, run_dir)  # CleanRL's TensorBoard; --track mirrors it to W&B
 
     core = None
     yardstick: dict = {}  # stage index -> the heuristic alone on that stage's evaluation maps
     updates_due, last_log, last_loss_log, t0 = 0.0, global_step, global_step, time.time() - wall
     latest = ""
     stop, previous_handlers = gridworld.stop_signals()
-    bar = progress_bar(total, global_step, args.quiet)
+    bar = gridworld.progress_bar(total, global_step, args.quiet)
 
     def save():
-        save_run(run_dir, q, target, optimizer, args, rng, global_step, stage_index, stages[stage_index].name,
-                 time.time() - t0, parent, machine)
+        gridworld.save_run(run_dir, SCRIPT, q, target, optimizer, args, rng, global_step, stage_index,
+                           stages[stage_index].name, time.time() - t0, parent, machine)
 
     # TRY NOT TO MODIFY: start the game
     while global_step < total and not stop["signal"] and not (args.time_limit and time.time() - t0 >= 60 * args.time_limit):
@@ -1052,7 +860,7 @@ def main(args: Args) -> None:
                       f"{replay.bytes_per_transition()} bytes per transition, "
                       f"{replay.bytes_per_transition() * args.buffer_size / 2**30:.2f} GiB for {args.buffer_size:,}")
             core.reset()
-            obs = observe(core, args.hint, args.heuristic_dead_ends, args.heuristic_far_first)
+            obs = gridworld.observe(core, args.hint, args.heuristic_dead_ends, args.heuristic_far_first)
             stack = Stacker(S, args.frame_stack, view, channels, args.hint)
             stack.push(obs, np.ones(S, bool))
             slot = np.zeros(S, np.int64)
@@ -1073,7 +881,7 @@ def main(args: Args) -> None:
         action = np.full(S, gridworld.WAIT)
         with torch.no_grad():
             maps, extras = stack.get()
-            action[live] = q(*to_torch(maps[live], extras[live], device)).argmax(1).cpu().numpy()
+            action[live] = q(*gridworld.to_torch(maps[live], extras[live], device)).argmax(1).cpu().numpy()
         endgame = (core.remaining <= core.active.sum(1))[:, None]  # no more cells than agents: all hand over
         teach = (teacher | continued)[:, None] | endgame | watch.stuck(core)
         teach = (teach & (rng.random((B, N)) < args.imitation)).ravel()
@@ -1104,7 +912,7 @@ def main(args: Args) -> None:
         ended = terminated | (truncated & ~args.partial_reset)
 
         # TRY NOT TO MODIFY: save data to replay buffer; handle final_observation
-        obs = observe(core, args.hint, args.heuristic_dead_ends, args.heuristic_far_first)
+        obs = gridworld.observe(core, args.hint, args.heuristic_dead_ends, args.heuristic_far_first)
         slot[live] = replay.add_frames(live, pick(obs, live), np.repeat(age + 1, N)[live], np.repeat(ended, N)[live])
         age += 1
         restart = np.zeros(S, bool)
@@ -1128,7 +936,7 @@ def main(args: Args) -> None:
             core.reset(fresh)
             for i, s in zip(w, core.snapshot(w)):
                 starts[i] = s
-            obs = observe(core, args.hint, args.heuristic_dead_ends, args.heuristic_far_first)
+            obs = gridworld.observe(core, args.hint, args.heuristic_dead_ends, args.heuristic_far_first)
             restart = np.zeros((B, N), bool)
             restart[w] = True
             restart = restart.ravel()
@@ -1194,12 +1002,10 @@ def main(args: Args) -> None:
             save()
     save()
     bar.close()
-    writer.close()
+    gridworld.close_writer(writer, args.track)
     for signum, handler in previous_handlers.items():
         signal.signal(signum, handler)
     lock.close()
-    if args.track:
-        wandb.finish()
     print(f"saved {os.path.join(run_dir, 'checkpoint.pt')} and {args.export} at step {global_step:,}")
     if stop["signal"]:  # interrupted: the shell's convention, 130 for Ctrl-C and 143 for SIGTERM
         raise SystemExit(128 + stop["signal"])

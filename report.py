@@ -356,8 +356,7 @@ def scale_references(model: str, quiet: bool = False) -> dict:
 def scale_curve(checkpoint: str) -> dict:
     """A run's learning curve and flags, read from its training checkpoint (rainbow_cpp.py --curve-every keeps the
     curve in it), with the checkpoint's steps, stage, wall time and hash, and the model a warm-started run began from."""
-    import rainbow_cpp
-    state = rainbow_cpp.load_checkpoint(checkpoint)
+    state = gridworld.load_checkpoint(checkpoint, "rainbow_cpp")
     record = checkpoint_record(checkpoint, state)
     parent = state.get("parent")  # --init-from's record; the scale run, from scratch, has none
     return {"checkpoint": record.pop("path"), **record, "wall_seconds": round(state["wall"]), "args": state["args"],
@@ -370,10 +369,9 @@ def scale_figures(model: str, p2p_maps: int, quiet: bool = False) -> dict:
     the fallback (the dissertation's heuristic, deterministic ties) and without it; per size every episode's overlap,
     whether it completed and whether it was truncated. Then, with the fallback, the report's structured_eval subset,
     the MovingAI episodes and p2p_eval, as the rainbow_cpp part measures the shipped model."""
-    import rainbow_cpp
     scenarios, sizes = classical_cpp.cpp_eval_subset(FIGURES_PER_SIZE)
     episodes = [(f"cpp_eval.npz[{z}x{z}]", classical_cpp.with_starts(s)) for s, z in zip(scenarios, sizes)]
-    result = {"model": checkpoint_record(model, rainbow_cpp.read_model(model)), "per_size": FIGURES_PER_SIZE}
+    result = {"model": checkpoint_record(model, gridworld.read_model(model)), "per_size": FIGURES_PER_SIZE}
     for key, fallback in (("fallback", True), ("alone", False)):
         rows = evaluate.run_rainbow(evaluate.Args(policy="rainbow", checkpoint=model, heuristic=fallback,
                                                   heuristic_dead_ends=False, quiet=quiet), episodes)

@@ -105,24 +105,24 @@ def row(network, hidden, batch_size, threads, device, replay_ratio=None, ms_per_
 def filled_replay(run: rc.Args, config: gridworld.EnvConfig, worlds: int = 16, steps: int = 160) -> rc.Replay:
     """A replay memory of real frames: `worlds` worlds of the stage, the heuristic acting for `steps` steps."""
     observation = rc.observation_settings(asdict(run))
-    channels, view = rc.frame_shape(observation)
+    channels, view = gridworld.frame_shape(observation)
     core = gridworld.GridWorldCore(config.replace(**observation), worlds, seed=0)
     core.reset()
     replay = rc.Replay(worlds * 256, worlds, view, run.frame_stack, 1, 0.999, 0.5,
                        None if observation["observation"] == "deep" else channels)
     every, age = np.arange(worlds), np.zeros(worlds, np.int64)
-    slot = replay.add_frames(every, rc.observe(core), age, np.zeros(worlds, bool))
+    slot = replay.add_frames(every, gridworld.observe(core), age, np.zeros(worlds, bool))
     for _ in range(steps):
         action = gridworld.heuristic_actions(core, False, True)[:, 0]
         ev = core.step(action[:, None])
         replay.set_transition(slot, np.minimum(action, rc.MOVES - 1), ev["reward"][:, 0], ev["terminated"])
         ended = ev["terminated"] | ev["truncated"]
         age += 1
-        slot = replay.add_frames(every, rc.observe(core), age, ended)
+        slot = replay.add_frames(every, gridworld.observe(core), age, ended)
         if ended.any():
             w = np.flatnonzero(ended)
             core.reset(w)
-            obs = rc.observe(core)
+            obs = gridworld.observe(core)
             slot[w] = replay.add_frames(w, {k: v[w] for k, v in obs.items()}, np.zeros(len(w), np.int64),
                                         np.zeros(len(w), bool))
             age[w] = 0

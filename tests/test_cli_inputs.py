@@ -383,17 +383,15 @@ def test_an_export_never_replaces_the_other_trainers_model(tmp_path, script, oth
 def test_a_checkpoint_resumes_only_in_its_own_trainer(tmp_path):
     import torch
 
-    import rainbow_cpp
-    import rainbow_marl
 
     state = {"model": {}, "optimizer": {}, "global_step": 0, "stage": 0, "wall": 0.0, "numpy_rng": {},
              "torch_rng": torch.zeros(1, dtype=torch.uint8)}
     torch.save({**state, "script": "rainbow_marl"}, tmp_path / "marl.pt")
     torch.save(state, tmp_path / "older.pt")  # before checkpoints said which trainer wrote them: either may resume it
-    one_line_value_error(rainbow_cpp.load_checkpoint, str(tmp_path / "marl.pt"),
+    one_line_value_error(gw.load_checkpoint, str(tmp_path / "marl.pt"), "rainbow_cpp",
                          match="marl.pt: a rainbow_marl.py run; resume it with rainbow_marl.py")
-    assert rainbow_marl.load_checkpoint(str(tmp_path / "marl.pt"))["script"] == "rainbow_marl"
-    assert rainbow_cpp.load_checkpoint(str(tmp_path / "older.pt"))["global_step"] == 0
+    assert gw.load_checkpoint(str(tmp_path / "marl.pt"), "rainbow_marl")["script"] == "rainbow_marl"
+    assert gw.load_checkpoint(str(tmp_path / "older.pt"), "rainbow_cpp")["global_step"] == 0
 
 
 def test_evaluate_refuses_flags_that_would_be_ignored_or_write_among_other_files(tmp_path, monkeypatch):

@@ -99,7 +99,7 @@ def test_the_default_network_is_fig_6_8_on_the_cpu_without_a_gpu(name, tmp_path,
     monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
     args, _, q, target, *_ = t.start_run(t.settle_flags(tiny(t, cuda=True)), 1)
     assert args.network == "fig6.8" and args.conv_width is None and args.scales is None
-    assert type(q) is t.QNetwork and t.device_of(q).type == "cpu" and t.device_of(target).type == "cpu"
+    assert type(q) is t.QNetwork and gw.device_of(q).type == "cpu" and gw.device_of(target).type == "cpu"
 
 
 # ----------------------------------------------------------------------------- the compact network
@@ -107,14 +107,14 @@ def test_the_default_network_is_fig_6_8_on_the_cpu_without_a_gpu(name, tmp_path,
 @pytest.mark.parametrize("frames", [1, 3, 4])
 def test_compact_network_shapes(settings, frames):
     observation = multiscale(*settings)
-    channels, view = rc.frame_shape(observation)
+    channels, view = gw.frame_shape(observation)
     assert (channels, view) == (settings[0] * gw.MULTISCALE_CHANNELS, settings[2])
     q = compact(frames, 16, 8, settings)
     assert q.frames == frames and q.conv[0].groups == settings[0] and q.conv[0].in_channels == channels * frames
     core = core_for(observation, worlds=3, seed=frames)
     stack = rc.Stacker(3, frames, view, channels)
-    stack.push(rc.observe(core), np.ones(3, bool))
-    maps, extras = rc.to_torch(*stack.get())
+    stack.push(gw.observe(core), np.ones(3, bool))
+    maps, extras = gw.to_torch(*stack.get())
     assert maps.shape == (3, channels * frames, view, view) and extras.shape == (3, 1 + frames * rc.EXTRAS)
     assert q(maps, extras).shape == (3, rc.MOVES)
     assert q.network() == {"network": "compact", "frames": frames, "hidden": 16, "conv_width": 8, "view": view,
@@ -152,13 +152,13 @@ def test_scales_do_not_mix_before_the_streams():
 def test_the_replay_keeps_multiscale_frames_as_they_are():
     """Raw uint8 frames, stacks and next states as the acting stack built them."""
     observation = multiscale()
-    channels, view = rc.frame_shape(observation)
+    channels, view = gw.frame_shape(observation)
     core = core_for(observation, worlds=2, seed=3)
     replay = rc.Replay(2 * 64, 2, view, 3, 1, 0.9, 0.5, channels)
     assert not replay.packed and replay.frames.dtype == np.uint8
     assert replay.bytes_per_transition() == 15 * 11 * 11 + 8 * 2 + 1 + 2 + 1 + 1 + 4 + 1 + 1 + 8 + 16
     stack = rc.Stacker(2, 3, view, channels)
-    obs = rc.observe(core)
+    obs = gw.observe(core)
     stack.push(obs, np.ones(2, bool))
     every, age, rng = np.arange(2), np.zeros(2, np.int64), np.random.default_rng(0)
     slot = replay.add_frames(every, obs, age, np.zeros(2, bool))
@@ -172,12 +172,12 @@ def test_the_replay_keeps_multiscale_frames_as_they_are():
         ev = core.step(action[:, None])
         replay.set_transition(slot, action, ev["reward"][:, 0], ev["terminated"])
         ended = ev["terminated"] | ev["truncated"]
-        obs = rc.observe(core)
+        obs = gw.observe(core)
         age += 1
         slot = replay.add_frames(every, obs, age, ended)
         if ended.any():
             core.reset(np.flatnonzero(ended))
-            obs = rc.observe(core)
+            obs = gw.observe(core)
             w = np.flatnonzero(ended)
             slot[w] = replay.add_frames(w, {k: v[w] for k, v in obs.items()}, np.zeros(len(w), np.int64),
                                         np.zeros(len(w), bool))
@@ -218,7 +218,7 @@ def test_export_and_load_round_trip_of_a_compact_model(tmp_path):
     torch.manual_seed(1)
     q = compact(2, 16, 8, (2, 3, 9))
     path = str(tmp_path / "c.pt")
-    rc.export(q, rc.Args(export=path), {})
+    gw.export_model(q, rc.Args(export=path), {})
     loaded = rc.load_policy(path)
     assert type(loaded) is rc.CompactQNetwork and loaded.network() == q.network()
     assert json.loads((tmp_path / "c.json").read_text())["network"] == q.network()
@@ -227,10 +227,10 @@ def test_export_and_load_round_trip_of_a_compact_model(tmp_path):
     halved = {k: v.half().float() if "sigma" not in k and "eps" not in k else v for k, v in q.state_dict().items()}
     q.load_state_dict(halved)  # what the fp16 export keeps
     core = core_for(multiscale(2, 3, 9), worlds=4)
-    stack = rc.Stacker(4, 2, *rc.frame_shape(multiscale(2, 3, 9))[::-1])
-    stack.push(rc.observe(core), np.ones(4, bool))
+    stack = rc.Stacker(4, 2, *gw.frame_shape(multiscale(2, 3, 9))[::-1])
+    stack.push(gw.observe(core), np.ones(4, bool))
     with torch.no_grad():
-        assert torch.allclose(loaded(*rc.to_torch(*stack.get())), q(*rc.to_torch(*stack.get())), atol=1e-6)
+        assert torch.allclose(loaded(*gw.to_torch(*stack.get())), q(*gw.to_torch(*stack.get())), atol=1e-6)
 
 
 def test_a_model_for_another_observation_is_a_one_line_error(tmp_path):
@@ -265,7 +265,7 @@ def test_warm_start_from_a_compact_model_with_other_scales_writes_nothing(name, 
                                                                           restore_sigint):
     t = TRAINERS[name]
     monkeypatch.chdir(tmp_path)
-    rc.export(compact(3, 16, 8), rc.Args(export="c.pt"), {})
+    gw.export_model(compact(3, 16, 8), rc.Args(export="c.pt"), {})
     with pytest.raises(ValueError, match=r"^--scale-view 9 contradicts c.pt \(scale view 11\)$"):
         t.main(tiny(t, init_from="c.pt", scale_view=9, run_name=None))
     assert not (tmp_path / "runs").exists()
@@ -292,7 +292,7 @@ def test_loading_is_device_agnostic(tmp_path, monkeypatch):
     path = tmp_path / "gpu.pt"
     with monkeypatch.context() as m:  # tag every storage as CUDA's, as torch.save does for GPU tensors
         m.setattr(torch.serialization, "location_tag", lambda storage: "cuda:0")
-        rc.export(q, rc.Args(export=str(path)), {})
+        gw.export_model(q, rc.Args(export=str(path)), {})
     if not torch.cuda.is_available():
         with pytest.raises(RuntimeError, match="CUDA"):
             torch.load(path, weights_only=True)  # without map_location it would not load here
@@ -362,7 +362,7 @@ def test_the_benchmark_rows_and_the_sb3_frame_stack():
     twin = gw.GridWorldEnv(config)
     obs, _ = env.reset(seed=5)
     own, _ = twin.reset(seed=5)
-    stack = rc.Stacker(1, 3, *rc.frame_shape(multiscale())[::-1])
+    stack = rc.Stacker(1, 3, *gw.frame_shape(multiscale())[::-1])
     stack.push({k: v[None] for k, v in own.items()}, np.ones(1, bool))
     for step in range(30):
         maps, extras = stack.get()

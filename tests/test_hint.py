@@ -25,7 +25,6 @@ if str(ROOT) not in sys.path:
 import classical_cpp as cc  # noqa: E402
 import gridworld as gw  # noqa: E402
 import rainbow_cpp as rc  # noqa: E402
-import rainbow_marl as rm  # noqa: E402
 
 
 def corridor_core() -> gw.GridWorldCore:
@@ -38,14 +37,13 @@ def corridor_core() -> gw.GridWorldCore:
     return core
 
 
-@pytest.mark.parametrize("t", [rc, rm])
-def test_observe_adds_the_heuristic_move(t):
+def test_observe_adds_the_heuristic_move():
     core = corridor_core()
-    assert "hint" not in t.observe(core)
-    assert t.observe(core, hint=True)["hint"].tolist() == [gw.WEST]
+    assert "hint" not in gw.observe(core)
+    assert gw.observe(core, hint=True)["hint"].tolist() == [gw.WEST]
     team = gw.GridWorldCore(gw.EnvConfig(number_agents=3, size=8), 4, seed=3)
     team.reset()
-    assert np.array_equal(t.observe(team, hint=True)["hint"], gw.heuristic_actions(team, False, True).reshape(-1))
+    assert np.array_equal(gw.observe(team, hint=True)["hint"], gw.heuristic_actions(team, False, True).reshape(-1))
 
 
 def test_replay_and_stacker_carry_the_hint_one_hot():
@@ -54,7 +52,7 @@ def test_replay_and_stacker_carry_the_hint_one_hot():
     replay = rc.Replay(64, 2, rc.VIEW, 2, 1, 0.99, 0.5, hint=True)
     plain = rc.Replay(64, 2, rc.VIEW, 2, 1, 0.99, 0.5)
     assert replay.bytes_per_transition() == plain.bytes_per_transition() + 1
-    obs = rc.observe(core, hint=True)
+    obs = gw.observe(core, hint=True)
     obs["hint"] = np.array([gw.SOUTH, gw.WAIT])
     slot = replay.add_frames(np.arange(2), obs, np.zeros(2, np.int64), np.zeros(2, bool))
     _, extras = replay._frames(slot)
@@ -79,14 +77,14 @@ def test_margin_loss_weights_by_hand():
 def test_a_hint_free_model_warm_starts_with_the_same_q(tmp_path, monkeypatch, network):
     spec = {**rc.COMPACT, "network": network, "frames": 2, "hidden": 16, "view": rc.VIEW}
     parent = rc.build_network(spec, 0.5)
-    rc.export(parent, rc.Args(export=str(tmp_path / "p.pt"), network=network), {})
+    gw.export_model(parent, rc.Args(export=str(tmp_path / "p.pt"), network=network), {})
     monkeypatch.chdir(tmp_path)
     args = rc.Args(run_name="w", init_from=str(tmp_path / "p.pt"), hint=True, threads=1, quiet=True)
     q = rc.start_run(rc.settle_flags(args), 1)[2]
     assert q.hint and q.network()["hint"]
     loaded = rc.load_policy(str(tmp_path / "p.pt"))
     q.reset_noise(False)
-    channels, view = rc.frame_shape(rc.observation_settings(q.network()))
+    channels, view = gw.frame_shape(rc.observation_settings(q.network()))
     maps = torch.randint(0, 256, (5, channels * 2, view, view), dtype=torch.uint8)
     extras = torch.rand(5, 1 + 2 * rc.EXTRAS)
     hint = torch.eye(rc.HINTS)[torch.tensor([0, 1, 2, 3, 4])]

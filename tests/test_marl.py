@@ -180,8 +180,8 @@ def test_one_forward_pass_acts_for_every_agent_as_its_own_copy_would():
     core.configure(scenarios=scenarios)
     core.reset()
     stack = rm.Stacker(12, 3, core.V)
-    stack.push(rm.observe(core), np.ones(12, bool))
-    maps, extras = rm.to_torch(*stack.get())
+    stack.push(gw.observe(core), np.ones(12, bool))
+    maps, extras = gw.to_torch(*stack.get())
     q.reset_noise(False)  # evaluate_policy turned the training noise back on
     with torch.no_grad():
         together = q(maps, extras).argmax(1)
@@ -302,7 +302,7 @@ def test_transfer_from_a_single_agent_model(tmp_path, monkeypatch, restore_sigin
     import rainbow_cpp
     monkeypatch.chdir(tmp_path)
     single = rainbow_cpp.QNetwork(3, 41, 16, 0.0)
-    rainbow_cpp.export(single, rainbow_cpp.Args(hidden=16, export=str(tmp_path / "single.pt")), {})
+    gw.export_model(single, rainbow_cpp.Args(hidden=16, export=str(tmp_path / "single.pt")), {})
     rm.main(small_args(tmp_path, init_from=str(tmp_path / "single.pt"), total_steps=30, learning_starts=10 ** 6,
                        eval_every=0, save_every=0))
     model = torch.load(tmp_path / "runs" / "t" / "checkpoint.pt", map_location="cpu", weights_only=False)["model"]

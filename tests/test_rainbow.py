@@ -223,7 +223,7 @@ class Driver:
         self.core, self.replay, self.k = core, replay, frames
         B = self.B = core.B
         self.every = np.arange(B)
-        obs = rc.observe(core)
+        obs = gw.observe(core)
         self.stacker = rc.Stacker(B, frames, core.V)
         self.stacker.push(obs, np.ones(B, bool))
         self.slot = replay.add_frames(self.every, obs, np.zeros(B, np.int64), np.zeros(B, bool))
@@ -249,7 +249,7 @@ class Driver:
         for i in range(B):
             rec = self.episodes[i][-1][-1]
             rec.update(action=int(action[i]), reward=float(reward[i]), terminal=bool(terminal[i]))
-        obs = rc.observe(core)
+        obs = gw.observe(core)
         self.slot = rp.add_frames(self.every, obs, self.age + 1, ended)
         self.age += 1
         for i in range(B):
@@ -260,7 +260,7 @@ class Driver:
         if ended.any():
             w = np.flatnonzero(ended)
             core.reset(w)
-            obs = rc.observe(core)
+            obs = gw.observe(core)
             self.slot[w] = rp.add_frames(w, {k: v[w] for k, v in obs.items()}, np.zeros(len(w), np.int64),
                                          np.zeros(len(w), bool))
             self.age[w] = 0
@@ -313,7 +313,7 @@ def big_corner_core():
 
 def test_replay_frame_round_trip_with_compressed_edges():
     core = big_corner_core()
-    obs = rc.observe(core)
+    obs = gw.observe(core)
     m = obs["map"]
     assert obs["map"].dtype == np.uint8 and m.shape == (2, 4, V, V)
     odd = (m != 0) & (m != 255)
@@ -805,11 +805,11 @@ def test_margin_loss_teaches_the_heuristic_actions():
     core = gw.GridWorldCore(gw.EnvConfig(size=5, number_obstacles=3), 8, seed=3)
     core.reset()
     stack = rc.Stacker(8, 3, core.V)
-    stack.push(rc.observe(core), np.ones(8, bool))
+    stack.push(gw.observe(core), np.ones(8, bool))
     label = torch.from_numpy(gw.heuristic_actions(core, False)[:, 0].astype(np.int64))
     q = rc.QNetwork(3, V, 16, 0.0)
     optimizer = torch.optim.Adam(q.parameters(), lr=1e-3)
-    maps, extras = rc.to_torch(*stack.get())
+    maps, extras = gw.to_torch(*stack.get())
     for _ in range(300):
         loss = rc.large_margin_loss(q(maps, extras), label, 0.8)
         optimizer.zero_grad()

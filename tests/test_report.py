@@ -510,10 +510,9 @@ def _tiny_scale_checkpoint(module, path: Path) -> str:
 
 def _tiny_finetune_checkpoint(run: str, path: Path, shipped: str) -> str:
     """The tiny scale run's checkpoint as a warm-started run writes it: with its parent's record."""
-    import rainbow_cpp
     parent = {"path": shipped, "sha256": hashlib.sha256(Path(shipped).read_bytes()).hexdigest(), "global_step": 10,
               "stage": "tiny", "provenance": {"git_commit": "abc"}}
-    gw.save_torch(str(path), {**rainbow_cpp.load_checkpoint(run), "parent": parent})
+    gw.save_torch(str(path), {**gw.load_checkpoint(run, "rainbow_cpp"), "parent": parent})
     return str(path)
 
 
@@ -799,7 +798,7 @@ def test_the_td_finetuning_curve_and_warm_start_are_copied_from_its_checkpoint(t
     assert td["checkpoint"] == os.path.relpath(finetune, ROOT)
     assert td["sha256"] == hashlib.sha256(Path(finetune).read_bytes()).hexdigest()
     assert (td["global_step"], td["stage"], td["wall_seconds"]) == (1000, 0, 5)
-    assert td["curve"] == rainbow_cpp.load_checkpoint(run)["curve"] and td["args"]["learning_rate"] == 5e-4
+    assert td["curve"] == gw.load_checkpoint(run, "rainbow_cpp")["curve"] and td["args"]["learning_rate"] == 5e-4
     assert td["parent"] == {"path": shipped, "sha256": hashlib.sha256(Path(shipped).read_bytes()).hexdigest(),
                             "global_step": 10}  # the warm start's record, not its whole chain
     assert "parent" not in report.scale_curve(run)  # a run from scratch

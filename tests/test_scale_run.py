@@ -218,7 +218,7 @@ def docs_command(marker: str = "scale-run") -> list[str]:
 def test_the_committed_scale_run_resumes_with_the_documented_command(tmp_path, monkeypatch, restore_sigint):
     flags = docs_command()
     assert "--resume" in flags and flags[flags.index("--run-name") + 1] == "rainbow_cpp_dissertation"
-    state = rc.load_checkpoint(str(SCALE_CHECKPOINT))
+    state = gw.load_checkpoint(str(SCALE_CHECKPOINT), "rainbow_cpp")
     args = tyro.cli(rc.Args, args=flags)
     recorded = state["args"]
     for key in ("network", "learning_rate", "stage_steps_scale", "camera_stages", "heuristic_dead_ends",
@@ -230,7 +230,7 @@ def test_the_committed_scale_run_resumes_with_the_documented_command(tmp_path, m
     shutil.copy(SCALE_CHECKPOINT, run / "checkpoint.pt")
     monkeypatch.chdir(tmp_path)
     settled = rc.settle_flags(args)  # the documented flags do not contradict the run's own
-    assert all(getattr(settled, k) == v for k, v in recorded.items() if k not in rc.RUN_FLAGS and hasattr(settled, k))
+    assert all(getattr(settled, k) == v for k, v in recorded.items() if k not in gw.RUN_FLAGS and hasattr(settled, k))
     resumed = rc.start_run(args, 6)
     q, target = resumed[2], resumed[3]
     assert resumed[6][:2] == (state["global_step"], state["stage"])
@@ -280,6 +280,6 @@ def test_the_committed_td_finetuning_resumes_with_the_documented_command(tmp_pat
     args = rc.settle_flags(tyro.cli(rc.Args, args=docs_command("td-finetune")))
     assert (args.td_weight, args.margin_loss, args.teacher, args.hint, args.heuristic_far_first) == (1.0, 0.0, "heuristic",
                                                                                                      True, True)
-    state = rc.load_checkpoint(str(FINETUNE_CHECKPOINT))
+    state = gw.load_checkpoint(str(FINETUNE_CHECKPOINT), "rainbow_cpp")
     assert rc.start_run(args, 1)[6][:2] == (state["global_step"], state["stage"])
     assert os.path.getsize(FINETUNE_CHECKPOINT) <= 20 * 2**20

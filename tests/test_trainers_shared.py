@@ -37,13 +37,11 @@ TRAINERS = {"rainbow_cpp": rc, "rainbow_marl": rm}
 # every top-level definition meant to be equal in the two scripts
 SHARED = [
     "SCRIPT", "HERE", "DEEP", "OBSERVATION", "VIEW", "CHANNELS", "LAST_ACTIONS", "OUT_OF_BOUNDS", "EXTRAS",
-    "OUT_OF_BOUNDS_SCALE", "MOVES", "DISSERTATION", "NETWORKS", "SCALE_KEYS", "HINTS", "COMPACT", "CHECKPOINT_KEYS",
+    "OUT_OF_BOUNDS_SCALE", "MOVES", "DISSERTATION", "NETWORKS", "SCALE_KEYS", "HINTS", "COMPACT",
     "NoisyLinear", "Dueling", "QNetwork", "CompactQNetwork", "build_network", "observation_settings",
-    "frame_shape", "device_of", "SumTree", "Replay", "Stacker", "observe", "to_torch",
-    "large_margin_loss", "learn", "diagnostics_of",
-    "export", "read_model", "network_of", "policy_from", "load_policy",
-    "load_checkpoint", "check_flags", "with_network", "observed", "start_run", "hinted", "save_run",
-    "progress_bar", "RUN_FLAGS", "settle_flags",
+    "SumTree", "Replay", "Stacker", "large_margin_loss", "learn", "diagnostics_of",
+    "network_of", "policy_from", "load_policy", "check_flags", "with_network", "observed", "start_run", "hinted",
+    "settle_flags",
 ]
 # the Args fields that the shared code reads, equal in both (flag, default and docstring)
 SHARED_FLAGS = ["exp_name", "seed", "run_name", "threads", "cuda", "torch_deterministic", "quiet",
@@ -191,7 +189,7 @@ def test_warm_start_takes_the_width_of_the_shipped_model(tmp_path, monkeypatch, 
     monkeypatch.chdir(tmp_path)
     (tmp_path / "models").mkdir()
     shipped = rc.QNetwork(3, rc.VIEW, 24, 0.0)
-    rc.export(shipped, rc.Args(hidden=24, export="models/rainbow_cpp.pt"), {})
+    gw.export_model(shipped, rc.Args(hidden=24, export="models/rainbow_cpp.pt"), {})
     rm.main(tiny(rm, hidden=None, init_from="models/rainbow_cpp.pt", run_name=None))
     run = next((tmp_path / "runs").iterdir())
     info = json.loads((run / "rainbow_marl.json").read_text())
@@ -358,7 +356,7 @@ def test_each_export_records_its_provenance_and_its_parents(tmp_path, monkeypatc
 
 def test_a_bad_parent_record_is_a_one_line_error(tmp_path, monkeypatch, restore_sigint):
     monkeypatch.chdir(tmp_path)
-    rc.export(rc.QNetwork(3, rc.VIEW, 16, 0.0), rc.Args(hidden=16, export="p.pt"), {})
+    gw.export_model(rc.QNetwork(3, rc.VIEW, 16, 0.0), rc.Args(hidden=16, export="p.pt"), {})
     (tmp_path / "p.json").write_text("{not json")
     with pytest.raises(ValueError, match="p.json: not a model record"):
         rc.main(tiny(rc, init_from="p.pt", hidden=None))
@@ -436,11 +434,11 @@ def test_capture_video_writes_one_mp4_per_evaluation(name, tmp_path, monkeypatch
 
 
 def test_progress_bar_is_off_when_quiet_or_not_a_terminal(monkeypatch):
-    assert rc.progress_bar(10, 0, quiet=True).disable
+    assert gw.progress_bar(10, 0, quiet=True).disable
     monkeypatch.setattr(sys.stdout, "isatty", lambda: False)
-    assert rm.progress_bar(10, 0, quiet=False).disable
+    assert gw.progress_bar(10, 0, quiet=False).disable
     monkeypatch.setattr(sys.stdout, "isatty", lambda: True)
-    assert not rm.progress_bar(10, 0, quiet=False).disable
+    assert not gw.progress_bar(10, 0, quiet=False).disable
 
 
 def test_the_learning_rate_flag_names_the_default_it_falls_back_to():
