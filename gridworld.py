@@ -509,6 +509,20 @@ def load_config(path: str) -> dict[str, EnvConfig]:
     return configs
 
 
+def curriculum(path: str | None, default: list[dict], single_agent: bool = False) -> list[EnvConfig]:
+    """A trainer's stages: the YAML file at `path` (named environments, `base_steps` each), else `default`; no stages,
+    a base_steps that is not a whole number > 0 or, with `single_agent`, a stage of several agents is an error."""
+    stages = list(load_config(path).values()) if path else [EnvConfig.from_dict(s) for s in default]
+    if not stages:
+        raise ValueError(f"{path}: no stages")
+    for s in stages:
+        if single_agent and s.number_agents != 1:
+            raise ValueError(f"stage {s.name}: this trainer is single-agent (number_agents: 1)")
+        if not isinstance(s.base_steps, int) or s.base_steps <= 0:
+            raise ValueError(f"stage {s.name}: base_steps must be a whole number > 0")
+    return stages
+
+
 # ----------------------------------------------------------------------------- runs: provenance, locks and stops
 def provenance(script: str) -> dict:
     """What made a run, read once at its start: the script, the git commit of this repository (dirty: tracked files
@@ -615,10 +629,16 @@ def lock_run(run_dir: str):
 
 def stop_signals() -> tuple[dict, dict]:
     """Ctrl-C and SIGTERM ask a training loop to stop: it ends, saves and exits 128 + the signal's number. Returns
-    the flag the loop reads ({"signal": 0} until then) and the handlers to put back."""
+    the flag the loop reads ({"signal": 0} until then) and the handlers restore_signals puts back."""
     stop = {"signal": 0}
     previous = {s: signal.signal(s, lambda n, _: stop.update(signal=n)) for s in (signal.SIGINT, signal.SIGTERM)}
     return stop, previous
+
+
+def restore_signals(previous: dict) -> None:
+    """The handlers stop_signals replaced, back in place."""
+    for signum, handler in previous.items():
+        signal.signal(signum, handler)
 
 
 def peak_memory_mb() -> int:
@@ -626,7 +646,7 @@ def peak_memory_mb() -> int:
     return round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)
 
 
-# ----------------------------------------------------------------------------- the trainers' files and flags
+# ----------------------------------------------------------------------------- the trainers' files, flags and logs
 UNREADABLE = (OSError, EOFError, RuntimeError, KeyError, IndexError, TypeError, ValueError, AttributeError,
               pickle.UnpicklingError, zipfile.BadZipFile)  # what torch.load of a foreign or truncated file raises
 
@@ -2929,7 +2949,7 @@ def team_rollout_actions(core: GridWorldCore, worlds=None, dead_ends_first: bool
     return chosen
 
 
-# ----------------------------------------------------------------------------- scenarios replayed; who is stuck (§6.4.2.4)
+# ----------------------------------------------------------------------------- evaluation (§6.5.2), curves, who is stuck
 def replay_config(scenarios: list[Scenario], sensor: str = "full", sensor_range: int = 3, sensor_failure: float = 0.0,
                   observation: dict | None = None) -> EnvConfig:
     """Worlds that replay the given scenarios as they are (maps, starts, coverage), as many agents as the most starts,
@@ -2953,6 +2973,37 @@ def heuristic_walk(config: EnvConfig, scenarios: list[Scenario], random_ties: bo
         done |= ev["terminated"] | ev["truncated"]
     m = core.metrics()
     return {**m, "steps": steps, "time_save": steps / np.maximum(m["n_poi_start"], 1)}
+
+
+CURVE_SLICES = {"cpp_eval": 5, "structured_eval": 14}  # a learning curve's held-out maps: every 5th, every 14th
+
+
+def curve_maps() -> dict[str, list[Scenario]]:
+    """A learning curve's fixed held-out maps (CURVE_SLICES of maps/), each with its first start (one agent)."""
+    return {name: [Scenario(s.obstacles, s.starts[:1], s.covered)
+                   for s in load_dataset(os.path.join(REPO, "maps", f"{name}.npz"))[::every]]
+            for name, every in CURVE_SLICES.items()}
+
+
+def curve_point(maps: dict[str, list[Scenario]], evaluate: Any) -> dict:
+    """A policy on each set of curve_maps, evaluate(scenarios, fallback) giving greedy_episodes' arrays, with the
+    fallback (`name`) and without it (`name`_alone): overlap, completion, §6.5.2's outliers (overlap > 0.5 or
+    truncated), the fallback's share; on cpp_eval by size too."""
+    point = {}
+    for name, scenarios in maps.items():
+        for fallback in (True, False):
+            m = evaluate(scenarios, fallback)
+            row = {"maps": len(scenarios), "overlap": round(float(m["overlap"].mean()), 4),
+                   "completion": round(float(m["completed"].mean()), 4),
+                   "outliers": int(((m["overlap"] > 0.5) | m["truncated"]).sum())}
+            if fallback:
+                row["fallback_share"] = round(float(m["heuristic_steps"].sum() / max(m["steps"].sum(), 1)), 4)
+            if name == "cpp_eval":
+                sizes = np.array([s.obstacles.shape[0] for s in scenarios])
+                row["overlap_by_size"] = {str(z): round(float(m["overlap"][sizes == z].mean()), 4)
+                                          for z in np.unique(sizes)}
+            point[name if fallback else f"{name}_alone"] = row
+    return point
 
 
 def world_paths(cells: list, steps: np.ndarray, active: np.ndarray) -> list[np.ndarray]:

@@ -16,7 +16,6 @@ import importlib.util
 import math
 import os
 import random
-import signal
 import time
 from dataclasses import asdict, dataclass, replace
 from typing import Literal
@@ -107,8 +106,7 @@ class Args:
     hidden: int | None = None
     """width of each dueling stream's hidden layers; default: the model loaded, else 512 (Fig. 6.8), 256 (compact)"""
     network: Literal["fig6.8", "compact"] | None = None
-    """fig6.8: Fig. 6.8 over the 41x41 deep observation; compact: grouped convolutions over the multiscale one (not in
-    the dissertation); default: the model loaded, else fig6.8"""
+    """fig6.8 (Fig. 6.8, deep observation) or compact (multiscale, not in the dissertation); default: the model's"""
     conv_width: int | None = None
     """compact network: convolution channels per scale; default: the model loaded, else 32"""
     scales: int | None = None
@@ -534,10 +532,10 @@ def large_margin_loss(q_all: torch.Tensor, label: torch.Tensor, margin: float) -
 
 
 def learn(q: QNetwork, target: QNetwork, optimizer: torch.optim.Optimizer, replay: Replay, args: Args,
-          beta: float, rng: np.random.Generator,
-          diagnose: bool = False) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None, dict | None]:
+          beta: float, rng: np.random.Generator, diagnose: bool = False) -> dict[str, float] | None:
     """One gradient step on a prioritized batch: the double-DQN TD loss (plus --margin-loss times the margin loss),
-    new priorities, the soft target update (eq. 6.19) and fresh noise; the losses and, with `diagnose`, diagnostics."""
+    new priorities, the soft target update (eq. 6.19) and fresh noise; with `diagnose` the TensorBoard scalars of the
+    losses and diagnostics_of."""
     device = gridworld.device_of(q)
     idx, (m_, e_, nm, ne, a_, ret, boot, weight, *label) = replay.batch(args.batch_size, beta, rng, device,
                                                                         labels=bool(args.margin_loss))
@@ -556,18 +554,20 @@ def learn(q: QNetwork, target: QNetwork, optimizer: torch.optim.Optimizer, repla
     grad_norm = nn.utils.clip_grad_norm_(q.parameters(), args.max_grad_norm)
     optimizer.step()
     replay.update_priorities(idx, (y - q_sa).detach().cpu().numpy())
-    diagnostics = diagnostics_of(q, m_, e_, q_all.detach(), (y - q_sa).detach(), weight, grad_norm) if diagnose else None
+    logs = diagnostics_of(q, m_, e_, q_all.detach(), (y - q_sa).detach(), weight, grad_norm, {
+        "td_loss": td_loss, "q_values": q_sa.mean(), "margin_loss": margin_loss}) if diagnose else None  # before new noise
     with torch.no_grad():  # eq. 6.19, one call for every tensor
         torch._foreach_lerp_(list(target.parameters()), list(q.parameters()), args.tau)
     q.reset_noise()
     target.reset_noise()
-    return td_loss.detach(), q_sa.detach().mean(), None if margin_loss is None else margin_loss.detach(), diagnostics
+    return logs
 
 
 def diagnostics_of(q: nn.Module, maps: torch.Tensor, extras: torch.Tensor, q_all: torch.Tensor, td_error: torch.Tensor,
-                   weight: torch.Tensor, grad_norm: torch.Tensor) -> dict[str, float]:
-    """What a DQN practitioner watches (diagnostics/*): Q's spread and action gap, |TD error|, the smallest importance
-    weight, the gradient norm, the noisy sigma and the dead units of each stream's first layer."""
+                   weight: torch.Tensor, grad_norm: torch.Tensor, losses: dict) -> dict[str, float]:
+    """TensorBoard's scalars of an update: the `losses` (losses/*, None: not computed) and what a DQN practitioner
+    watches (diagnostics/*): Q's spread and action gap, |TD error|, the smallest importance weight, the gradient
+    norm, the noisy sigma and the dead units of each stream's first layer."""
     first = {"value": [], "advantage": []}
     hooks = [getattr(q, k)[0].register_forward_hook(lambda _, __, out, seen=seen: seen.append(out))
              for k, seen in first.items()]
@@ -577,11 +577,13 @@ def diagnostics_of(q: nn.Module, maps: torch.Tensor, extras: torch.Tensor, q_all
         hook.remove()
     best_two = q_all.topk(2, 1).values
     sigma = torch.stack([m.weight_sigma.abs().mean() for m in q.modules() if isinstance(m, NoisyLinear)])
-    return {"q_spread": (q_all.max(1).values - q_all.min(1).values).mean().item(),
-            "action_gap": (best_two[:, 0] - best_two[:, 1]).mean().item(), "td_error": td_error.abs().mean().item(),
-            "importance_weight_min": weight.min().item(), "grad_norm": float(grad_norm),
-            "noisy_sigma": sigma.mean().item(),
-            **{f"dead_units_{k}": (seen[0] <= 0).all(0).float().mean().item() for k, seen in first.items()}}
+    watched = {"q_spread": (q_all.max(1).values - q_all.min(1).values).mean().item(),
+               "action_gap": (best_two[:, 0] - best_two[:, 1]).mean().item(), "td_error": td_error.abs().mean().item(),
+               "importance_weight_min": weight.min().item(), "grad_norm": float(grad_norm),
+               "noisy_sigma": sigma.mean().item(),
+               **{f"dead_units_{k}": (seen[0] <= 0).all(0).float().mean().item() for k, seen in first.items()}}
+    return ({f"losses/{k}": v.item() for k, v in losses.items() if v is not None}
+            | {f"diagnostics/{k}": v for k, v in watched.items()})
 
 
 # ----------------------------------------------------------------------------- files
@@ -753,21 +755,10 @@ def rollout_labels(core: gridworld.GridWorldCore, label: np.ndarray, teach: np.n
 
 
 def load_stages(args: Args) -> list[gridworld.EnvConfig]:
-    if not 0.0 <= args.uncommon_patterns <= 1.0 or not 0.0 <= args.uncommon_max < 1.0:
-        raise ValueError(f"--uncommon-patterns {args.uncommon_patterns} and --uncommon-max {args.uncommon_max}: "
-                         "need a chance in [0, 1] and a fraction in [0, 1)")
-    if args.stages:
-        stages = list(gridworld.load_config(args.stages).values())
-    else:
-        stages = [gridworld.EnvConfig.from_dict(s) for s in STAGES if args.camera_stages or s["sensor"] == "full"]
-    if not stages:
-        raise ValueError(f"{args.stages}: no stages")
-    for s in stages:
-        if s.number_agents != 1:
-            raise ValueError(f"stage {s.name}: rainbow_cpp is single-agent (number_agents: 1)")
-        if not isinstance(s.base_steps, int) or s.base_steps <= 0:
-            raise ValueError(f"stage {s.name}: base_steps must be a whole number > 0")
-    return stages
+    gridworld.check_ranges(args, {"curve_every": 0}, unit=("uncommon_patterns",))
+    if not 0.0 <= args.uncommon_max < 1.0:
+        raise ValueError(f"--uncommon-max must be in [0, 1), got {args.uncommon_max}")
+    return gridworld.curriculum(args.stages, [s for s in STAGES if args.camera_stages or s["sensor"] == "full"], True)
 
 
 def stage_config(stage: gridworld.EnvConfig, args: Args) -> gridworld.EnvConfig:
@@ -775,37 +766,6 @@ def stage_config(stage: gridworld.EnvConfig, args: Args) -> gridworld.EnvConfig:
     if stage.random_coverage and args.uncommon_patterns > 0:
         return stage.replace(random_coverage_prob=args.uncommon_patterns, random_coverage_max=args.uncommon_max)
     return stage
-
-
-CURVE_SLICES = {"cpp_eval": 5, "structured_eval": 14}  # --curve-every's held-out maps: every 5th, every 14th
-
-
-def curve_maps() -> dict[str, list[gridworld.Scenario]]:
-    """The learning curve's fixed held-out maps (CURVE_SLICES), each with its first start (one agent)."""
-    return {name: [gridworld.Scenario(s.obstacles, s.starts[:1], s.covered)
-                   for s in gridworld.load_dataset(os.path.join(HERE, "maps", f"{name}.npz"))[::every]]
-            for name, every in CURVE_SLICES.items()}
-
-
-def curve_point(q: QNetwork, maps: dict[str, list[gridworld.Scenario]], args: Args) -> dict:
-    """The greedy policy on each set of curve_maps with the fallback (`name`) and without it (`name`_alone): overlap,
-    completion, §6.5.2's outliers (overlap > 0.5 or truncated), the fallback's share; on cpp_eval by size too."""
-    point = {}
-    for name, scenarios in maps.items():
-        for fallback in (True, False):
-            m = evaluate_policy(q, scenarios, args.frame_stack, heuristic=fallback,
-                                dead_ends_first=args.heuristic_dead_ends)
-            row = {"maps": len(scenarios), "overlap": round(float(m["overlap"].mean()), 4),
-                   "completion": round(float(m["completed"].mean()), 4),
-                   "outliers": int(((m["overlap"] > 0.5) | m["truncated"]).sum())}
-            if fallback:
-                row["fallback_share"] = round(float(m["heuristic_steps"].sum() / max(m["steps"].sum(), 1)), 4)
-            if name == "cpp_eval":
-                sizes = np.array([s.obstacles.shape[0] for s in scenarios])
-                row["overlap_by_size"] = {str(z): round(float(m["overlap"][sizes == z].mean()), 4)
-                                          for z in np.unique(sizes)}
-            point[name if fallback else f"{name}_alone"] = row
-    return point
 
 
 def evaluate_policy(q: QNetwork, scenarios: list, frames: int, sensor: str = "full", sensor_range: int = 3,
@@ -837,13 +797,11 @@ def main(args: Args) -> None:
     # TRY NOT TO MODIFY: flags, files read and seeding; nothing is written before all of them check out
     args = settle_flags(args)
     check_flags(args)
-    if args.curve_every < 0:
-        raise ValueError(f"--curve-every must be >= 0, got {args.curve_every}")
     stages = load_stages(args)
     if args.buffer_size < 64 * args.num_envs:
         raise ValueError(f"--buffer-size {args.buffer_size}: need buffer_size >= 64 * num_envs")
     eval_set = gridworld.load_dataset(os.path.join(HERE, "maps", "cpp_eval.npz"))
-    held_out = curve_maps() if args.curve_every else {}
+    held_out = gridworld.curve_maps() if args.curve_every else {}
     args, run_dir, q, target, optimizer, rng, (global_step, stage_index, wall, curve), parent = start_run(args, len(stages))
     stages, device = observed(stages, args), gridworld.device_of(q)  # the stages observed as the network needs
     observation = observation_settings(asdict(args))
@@ -962,17 +920,10 @@ def main(args: Args) -> None:
         while updates_due >= 1:
             updates_due -= 1
             beta = args.beta_start + (1 - args.beta_start) * min(1.0, global_step / min(total, ends[-1]))
-            diagnose = global_step - last_loss_log >= 1000  # the first update after each 1000 steps
-            td_loss, q_values, margin_loss, diagnostics = learn(q, target, optimizer, replay, args, beta, rng,
-                                                                diagnose)
-            if diagnose:
+            if diagnose := global_step - last_loss_log >= 1000:  # the first update after each 1000 steps
                 last_loss_log = global_step
-                writer.add_scalar("losses/td_loss", td_loss.item(), global_step)
-                writer.add_scalar("losses/q_values", q_values.item(), global_step)
-                for k, v in diagnostics.items():
-                    writer.add_scalar(f"diagnostics/{k}", v, global_step)
-                if margin_loss is not None:
-                    writer.add_scalar("losses/margin_loss", margin_loss.item(), global_step)
+            for tag, value in (learn(q, target, optimizer, replay, args, beta, rng, diagnose) or {}).items():
+                writer.add_scalar(tag, value, global_step)
         if global_step - last_log >= 1000:
             sps = int(global_step / max(time.time() - t0, 1e-9))
             writer.add_scalar("charts/SPS", sps, global_step)
@@ -1010,7 +961,8 @@ def main(args: Args) -> None:
                      "sps": round((global_step - curve_clock[0]) / max(tick - curve_clock[1], 1e-9)),
                      "steps_since_resume": global_step - replay_born,  # the replay memory restarted then
                      "peak_rss_mb": gridworld.peak_memory_mb(), "learning_rate": args.learning_rate}
-            point |= curve_point(q, held_out, args)
+            point |= gridworld.curve_point(held_out, lambda maps, fallback: evaluate_policy(
+                q, maps, args.frame_stack, heuristic=fallback, dead_ends_first=args.heuristic_dead_ends))
             curve.append(point | {"eval_seconds": round(time.time() - tick)})
             gridworld.write_json(os.path.join(run_dir, "curve.json"), {"args": asdict(args), "curve": curve}, "run",
                                  overwrite=True, flag="curve")
@@ -1032,8 +984,7 @@ def main(args: Args) -> None:
     save()
     bar.close()
     gridworld.close_writer(writer, args.track)
-    for signum, handler in previous_handlers.items():
-        signal.signal(signum, handler)
+    gridworld.restore_signals(previous_handlers)
     lock.close()
     print(f"saved {os.path.join(run_dir, 'checkpoint.pt')} and {args.export} at step {global_step:,}")
     if stop["signal"]:  # interrupted: the shell's convention, 130 for Ctrl-C and 143 for SIGTERM

@@ -16,7 +16,6 @@ import importlib.util
 import math
 import os
 import random
-import signal
 import time
 from dataclasses import asdict, dataclass, replace
 from typing import Literal
@@ -113,8 +112,7 @@ class Args:
     hidden: int | None = None
     """width of each dueling stream's hidden layers; default: the model loaded, else 512 (Fig. 6.8), 256 (compact)"""
     network: Literal["fig6.8", "compact"] | None = None
-    """fig6.8: Fig. 6.8 over the 41x41 deep observation; compact: grouped convolutions over the multiscale one (not in
-    the dissertation); default: the model loaded, else fig6.8"""
+    """fig6.8 (Fig. 6.8, deep observation) or compact (multiscale, not in the dissertation); default: the model's"""
     conv_width: int | None = None
     """compact network: convolution channels per scale; default: the model loaded, else 32"""
     scales: int | None = None
@@ -144,8 +142,7 @@ class Args:
     heuristic_random_ties: bool = False
     """the heuristic breaks ties at random (§6.3.1) instead of by the first cell"""
     teacher: Literal["heuristic", "rollout"] = "heuristic"
-    """who acts under §6.4.2.4's conditions and labels for --margin-loss: heuristic (with claims), or rollout (the
-    multiagent rollout of the heuristic)"""
+    """who acts under §6.4.2.4's conditions and labels for --margin-loss: heuristic (with claims) or its team rollout"""
     heuristic_dead_ends: bool = True
     """the heuristic takes equally near targets with the fewest uncovered neighbours first (not in the dissertation)"""
     heuristic_far_first: bool = False
@@ -533,10 +530,10 @@ def large_margin_loss(q_all: torch.Tensor, label: torch.Tensor, margin: float) -
 
 
 def learn(q: QNetwork, target: QNetwork, optimizer: torch.optim.Optimizer, replay: Replay, args: Args,
-          beta: float, rng: np.random.Generator,
-          diagnose: bool = False) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None, dict | None]:
+          beta: float, rng: np.random.Generator, diagnose: bool = False) -> dict[str, float] | None:
     """One gradient step on a prioritized batch: the double-DQN TD loss (plus --margin-loss times the margin loss),
-    new priorities, the soft target update (eq. 6.19) and fresh noise; the losses and, with `diagnose`, diagnostics."""
+    new priorities, the soft target update (eq. 6.19) and fresh noise; with `diagnose` the TensorBoard scalars of the
+    losses and diagnostics_of."""
     device = gridworld.device_of(q)
     idx, (m_, e_, nm, ne, a_, ret, boot, weight, *label) = replay.batch(args.batch_size, beta, rng, device,
                                                                         labels=bool(args.margin_loss))
@@ -555,18 +552,20 @@ def learn(q: QNetwork, target: QNetwork, optimizer: torch.optim.Optimizer, repla
     grad_norm = nn.utils.clip_grad_norm_(q.parameters(), args.max_grad_norm)
     optimizer.step()
     replay.update_priorities(idx, (y - q_sa).detach().cpu().numpy())
-    diagnostics = diagnostics_of(q, m_, e_, q_all.detach(), (y - q_sa).detach(), weight, grad_norm) if diagnose else None
+    logs = diagnostics_of(q, m_, e_, q_all.detach(), (y - q_sa).detach(), weight, grad_norm, {
+        "td_loss": td_loss, "q_values": q_sa.mean(), "margin_loss": margin_loss}) if diagnose else None  # before new noise
     with torch.no_grad():  # eq. 6.19, one call for every tensor
         torch._foreach_lerp_(list(target.parameters()), list(q.parameters()), args.tau)
     q.reset_noise()
     target.reset_noise()
-    return td_loss.detach(), q_sa.detach().mean(), None if margin_loss is None else margin_loss.detach(), diagnostics
+    return logs
 
 
 def diagnostics_of(q: nn.Module, maps: torch.Tensor, extras: torch.Tensor, q_all: torch.Tensor, td_error: torch.Tensor,
-                   weight: torch.Tensor, grad_norm: torch.Tensor) -> dict[str, float]:
-    """What a DQN practitioner watches (diagnostics/*): Q's spread and action gap, |TD error|, the smallest importance
-    weight, the gradient norm, the noisy sigma and the dead units of each stream's first layer."""
+                   weight: torch.Tensor, grad_norm: torch.Tensor, losses: dict) -> dict[str, float]:
+    """TensorBoard's scalars of an update: the `losses` (losses/*, None: not computed) and what a DQN practitioner
+    watches (diagnostics/*): Q's spread and action gap, |TD error|, the smallest importance weight, the gradient
+    norm, the noisy sigma and the dead units of each stream's first layer."""
     first = {"value": [], "advantage": []}
     hooks = [getattr(q, k)[0].register_forward_hook(lambda _, __, out, seen=seen: seen.append(out))
              for k, seen in first.items()]
@@ -576,11 +575,13 @@ def diagnostics_of(q: nn.Module, maps: torch.Tensor, extras: torch.Tensor, q_all
         hook.remove()
     best_two = q_all.topk(2, 1).values
     sigma = torch.stack([m.weight_sigma.abs().mean() for m in q.modules() if isinstance(m, NoisyLinear)])
-    return {"q_spread": (q_all.max(1).values - q_all.min(1).values).mean().item(),
-            "action_gap": (best_two[:, 0] - best_two[:, 1]).mean().item(), "td_error": td_error.abs().mean().item(),
-            "importance_weight_min": weight.min().item(), "grad_norm": float(grad_norm),
-            "noisy_sigma": sigma.mean().item(),
-            **{f"dead_units_{k}": (seen[0] <= 0).all(0).float().mean().item() for k, seen in first.items()}}
+    watched = {"q_spread": (q_all.max(1).values - q_all.min(1).values).mean().item(),
+               "action_gap": (best_two[:, 0] - best_two[:, 1]).mean().item(), "td_error": td_error.abs().mean().item(),
+               "importance_weight_min": weight.min().item(), "grad_norm": float(grad_norm),
+               "noisy_sigma": sigma.mean().item(),
+               **{f"dead_units_{k}": (seen[0] <= 0).all(0).float().mean().item() for k, seen in first.items()}}
+    return ({f"losses/{k}": v.item() for k, v in losses.items() if v is not None}
+            | {f"diagnostics/{k}": v for k, v in watched.items()})
 
 
 # ----------------------------------------------------------------------------- files
@@ -758,16 +759,7 @@ def team_rollout_labels(core: gridworld.GridWorldCore, label: np.ndarray, teach:
 def load_stages(args: Args) -> list[gridworld.EnvConfig]:
     if not 0.0 <= args.gain <= (1.0 if args.reward_structure == "size_invariant" else float("inf")):
         raise ValueError(f"--gain {args.gain}: needs 0 <= K (and K <= 1 for size_invariant, eq. 7.5)")
-    if args.stages:
-        stages = list(gridworld.load_config(args.stages).values())
-    else:
-        stages = [gridworld.EnvConfig.from_dict(s) for s in STAGES]
-    if not stages:
-        raise ValueError(f"{args.stages}: no stages")
-    for s in stages:
-        if not isinstance(s.base_steps, int) or s.base_steps <= 0:
-            raise ValueError(f"stage {s.name}: base_steps must be a whole number > 0")
-    return stages
+    return gridworld.curriculum(args.stages, STAGES)
 
 
 def stage_config(stage: gridworld.EnvConfig, args: Args) -> gridworld.EnvConfig:
@@ -785,11 +777,10 @@ def evaluate_policy(q: QNetwork, scenarios: list, frames: int, sensor: str = "fu
                     sensor_failure: float = 0.0, heuristic: bool = True, random_ties: bool = False,
                     action_loss: float = 0.0, faulty_at: float | None = None, seed: int = 0,
                     dead_ends_first: bool = True, trajectories: list | None = None) -> dict:
-    """Decentralised execution (§7.4.1) of the deterministic policy (noise off) once on each scenario, with as many
-    agents as it has starts: every agent acts on its own observation with the same weights, so one batched forward
-    pass equals N separate copies. With `heuristic` the fallback of §6.5.2.1, and every agent hands over once no more
-    cells are left than working agents; `action_loss` and `faulty_at` (§7.5.3.3) as gridworld.greedy_episodes, whose
-    per-episode arrays this returns. The observation and frames are the network's (`frames` only without a record)."""
+    """Decentralised execution (§7.4.1) of the deterministic policy (noise off, the network's observation and frames)
+    once on each scenario, as many agents as it has starts, each on its own observation with the same weights (one
+    batched forward pass equals N copies). With `heuristic` the fallback of §6.5.2.1, and all hand over once no more
+    cells are left than working agents; `action_loss`, `faulty_at` (§7.5.3.3) and the arrays: greedy_episodes'."""
     spec = q.network() if hasattr(q, "network") else {"frames": frames}
     observation, device, hint = observation_settings(spec), gridworld.device_of(q), bool(spec.get("hint"))
     config = gridworld.replay_config(scenarios, sensor, sensor_range, sensor_failure, observation)
@@ -817,8 +808,7 @@ def main(args: Args) -> None:
     check_flags(args)
     stages = load_stages(args)
     if args.buffer_size < 64 * args.num_envs * max(s.number_agents for s in stages):
-        raise ValueError(f"--buffer-size {args.buffer_size}: need buffer_size >= 64 * num_envs * the most agents "
-                         "of a stage")
+        raise ValueError(f"--buffer-size {args.buffer_size}: need >= 64 * num_envs * the most agents of a stage")
     eval_path = os.path.join(HERE, "maps", "marl_eval.npz")
     eval_set, eval_sizes = gridworld.load_dataset(eval_path), np.load(eval_path)["size"]
     args, run_dir, q, target, optimizer, rng, (global_step, stage_index, wall, _), parent = start_run(args, len(stages))
@@ -856,9 +846,9 @@ def main(args: Args) -> None:
             replay = Replay(args.buffer_size, S, view, args.frame_stack, args.n_step, args.gamma, args.alpha,
                             None if observation["observation"] == "deep" else channels, args.hint)
             replay_born = global_step  # a new (or resumed) memory refills for learning_starts steps
-            bar.write(f"{run_dir}: {N} agents, {args.network} network on {device}, replay "
-                      f"{replay.bytes_per_transition()} bytes per transition, "
-                      f"{replay.bytes_per_transition() * args.buffer_size / 2**30:.2f} GiB for {args.buffer_size:,}")
+            per = replay.bytes_per_transition()
+            bar.write(f"{run_dir}: {N} agents, {args.network} network on {device}, replay {per} bytes per transition, "
+                      f"{per * args.buffer_size / 2**30:.2f} GiB for {args.buffer_size:,}")
             core.reset()
             obs = gridworld.observe(core, args.hint, args.heuristic_dead_ends, args.heuristic_far_first)
             stack = Stacker(S, args.frame_stack, view, channels, args.hint)
@@ -955,17 +945,10 @@ def main(args: Args) -> None:
         while updates_due >= 1:
             updates_due -= 1
             beta = args.beta_start + (1 - args.beta_start) * min(1.0, global_step / min(total, ends[-1]))
-            diagnose = global_step - last_loss_log >= 1000  # the first update after each 1000 steps
-            td_loss, q_values, margin_loss, diagnostics = learn(q, target, optimizer, replay, args, beta, rng,
-                                                                diagnose)
-            if diagnose:
+            if diagnose := global_step - last_loss_log >= 1000:  # the first update after each 1000 steps
                 last_loss_log = global_step
-                writer.add_scalar("losses/td_loss", td_loss.item(), global_step)
-                writer.add_scalar("losses/q_values", q_values.item(), global_step)
-                for k, v in diagnostics.items():
-                    writer.add_scalar(f"diagnostics/{k}", v, global_step)
-                if margin_loss is not None:
-                    writer.add_scalar("losses/margin_loss", margin_loss.item(), global_step)
+            for tag, value in (learn(q, target, optimizer, replay, args, beta, rng, diagnose) or {}).items():
+                writer.add_scalar(tag, value, global_step)
         if global_step - last_log >= 1000:
             sps = int(global_step / max(time.time() - t0, 1e-9))
             writer.add_scalar("charts/SPS", sps, global_step)
@@ -1003,8 +986,7 @@ def main(args: Args) -> None:
     save()
     bar.close()
     gridworld.close_writer(writer, args.track)
-    for signum, handler in previous_handlers.items():
-        signal.signal(signum, handler)
+    gridworld.restore_signals(previous_handlers)
     lock.close()
     print(f"saved {os.path.join(run_dir, 'checkpoint.pt')} and {args.export} at step {global_step:,}")
     if stop["signal"]:  # interrupted: the shell's convention, 130 for Ctrl-C and 143 for SIGTERM

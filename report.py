@@ -329,12 +329,11 @@ def checkpoint_record(path: str, state: dict) -> dict:
 
 
 def scale_references(model: str, quiet: bool = False) -> dict:
-    """The references of the scale run's learning curve on its own held-out maps (rainbow_cpp.curve_maps): the
+    """The references of the scale run's learning curve on its own held-out maps (gridworld.curve_maps): the
     dissertation's heuristic with deterministic ties (greedy), greedy-far-first, LKH and the shipped model with its
     fallback; per set the mean overlap and completion, for cpp_eval also by size."""
-    import rainbow_cpp
-    result = {"model": _model_json(model), "slices": rainbow_cpp.CURVE_SLICES}
-    maps = rainbow_cpp.curve_maps()
+    result = {"model": _model_json(model), "slices": gridworld.CURVE_SLICES}
+    maps = gridworld.curve_maps()
     with _bar(len(maps) * (len(SCALE_REFERENCES) + 1), "scale references", quiet) as bar:
         for name, scenarios in maps.items():
             episodes = [(f"{name}.npz[{i}]", classical_cpp.with_starts(s)) for i, s in enumerate(scenarios)]
@@ -407,9 +406,8 @@ def td_finetune_results(checkpoint: str, shipped: str, quiet: bool = False) -> d
     """The TD fine-tuning of the shipped model: its learning curve (scale_curve), then the greedy network of its
     committed checkpoint beside the shipped model (each with the fallback, and alone) and greedy-far-first on all of
     structured_eval and on the fresh per-family maps; by_family of each, per set."""
-    import rainbow_cpp
     result = scale_curve(checkpoint) | {
-        "slices": rainbow_cpp.CURVE_SLICES, "shipped": checkpoint_record(shipped, _model_json(shipped)),
+        "slices": gridworld.CURVE_SLICES, "shipped": checkpoint_record(shipped, _model_json(shipped)),
         "fresh_recipe": {"seed": FRESH_SEED, "per_size": FRESH_PER_SIZE, "sizes": [FRESH_SIZES[0], FRESH_SIZES[-1]],
                          "obstacles": FRESH_OBSTACLES}}
     models = {"fine_tuned": checkpoint, "shipped": shipped}

@@ -474,8 +474,8 @@ def tiny(tmp_path, monkeypatch, small_report_maps):
     monkeypatch.setattr(report, "SENSOR_RANGES", (1, 3))
     rainbow = _tiny_model(rainbow_cpp, models / "rainbow_cpp.pt", {"heuristic_dead_ends": True})
     small = {name: [gw.Scenario(s.obstacles, s.starts[:1], s.covered) for s in gw.load_dataset(
-        str(ROOT / "maps" / f"{name}.npz"))[:2]] for name in rainbow_cpp.CURVE_SLICES}
-    monkeypatch.setattr(rainbow_cpp, "curve_maps", lambda: small)
+        str(ROOT / "maps" / f"{name}.npz"))[:2]] for name in gw.CURVE_SLICES}
+    monkeypatch.setattr(gw, "curve_maps", lambda: small)
     monkeypatch.setattr(report, "FIGURES_PER_SIZE", 2)
     scale_run = _tiny_scale_checkpoint(rainbow_cpp, models / "run.pt")
     monkeypatch.setattr(report, "FRESH_PER_SIZE", 1)

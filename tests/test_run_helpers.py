@@ -1,5 +1,8 @@
-"""gridworld's helpers for the trainers: packed deep frames, §6.5.2.1's hand-over, flag checks and resumed flags."""
+"""gridworld's helpers for the trainers: packed deep frames, §6.5.2.1's hand-over and greedy evaluation, flag checks,
+choices and resumed flags, the curriculum and the stop signals."""
+import signal
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 import pytest
@@ -86,3 +89,62 @@ def test_read_torch_refuses_a_foreign_file_in_one_line(tmp_path):
         gw.read_torch(str(tmp_path / "x.pt"), "model")
     gw.save_torch(str(tmp_path / "y.pt"), {"w": torch.ones(2)})
     assert gw.read_torch(str(tmp_path / "y.pt"), "model")["w"].tolist() == [1.0, 1.0]
+
+
+def corridor():
+    """A 1x4 corridor, the agent at its west end: three points of interest to the east."""
+    return gw.Scenario(np.zeros((1, 4), bool), np.array([[0, 0]]))
+
+
+def waiting_policy(calls):
+    def act(obs, restart, acting):
+        calls.append(restart.copy())
+        return np.full(len(acting), gw.WAIT)
+    return act
+
+
+def test_greedy_episodes_hand_a_stuck_agent_over_for_one_more_cell_each_time():
+    calls = []
+    m = gw.greedy_episodes(gw.replay_config([corridor()]), [corridor()], waiting_policy(calls))
+    # waits 0-4, stuck at 5 (owes 1 cell: the heuristic's move), waits 6-10, stuck at 11 (owes 2): 13 steps
+    assert m["steps"].tolist() == [13] and m["heuristic_steps"].tolist() == [3] and m["completed"].all()
+    assert not m["truncated"].any() and m["agents"].tolist() == [1] and "walled_off" not in m
+    assert calls[0].all() and not any(c.any() for c in calls[1:])  # each stream's first frame is marked once
+
+
+def test_greedy_episodes_without_the_fallback_run_out_of_battery():
+    m = gw.greedy_episodes(gw.replay_config([corridor()]), [corridor()], waiting_policy([]), heuristic=False)
+    assert m["steps"].tolist() == [5 * 1 * 4] and m["truncated"].all() and not m["completed"].any()
+    assert m["heuristic_steps"].tolist() == [0]
+
+
+def test_check_choices_reads_the_literal_flags():
+    @dataclass
+    class Choices:
+        teacher: Literal["heuristic", "rollout"] = "heuristic"
+        network: Literal["fig6.8", "compact"] | None = None
+
+    gw.check_choices(Choices())
+    with pytest.raises(ValueError, match=r"^--teacher must be one of heuristic, rollout, got 'oracle'$"):
+        gw.check_choices(Choices(teacher="oracle"))
+    with pytest.raises(ValueError, match=r"^--network must be one of fig6.8, compact, got 'big'$"):
+        gw.check_choices(Choices(network="big"))
+
+
+def test_curriculum_refuses_what_a_trainer_cannot_run(tmp_path):
+    assert [s.size for s in gw.curriculum(None, [dict(name="a", base_steps=5, size=6)])] == [6]
+    (tmp_path / "s.yaml").write_text("team:\n  number_agents: 2\n  base_steps: 10\n")
+    assert gw.curriculum(str(tmp_path / "s.yaml"), [])[0].number_agents == 2
+    with pytest.raises(ValueError, match=r"^stage team: this trainer is single-agent \(number_agents: 1\)$"):
+        gw.curriculum(str(tmp_path / "s.yaml"), [], single_agent=True)
+    with pytest.raises(ValueError, match=r"^stage a: base_steps must be a whole number > 0$"):
+        gw.curriculum(None, [dict(name="a", base_steps=0)])
+
+
+def test_restore_signals_puts_back_the_handlers():
+    before = signal.getsignal(signal.SIGTERM)
+    stop, previous = gw.stop_signals()
+    signal.raise_signal(signal.SIGTERM)
+    assert stop["signal"] == signal.SIGTERM
+    gw.restore_signals(previous)
+    assert signal.getsignal(signal.SIGTERM) is before

@@ -47,13 +47,13 @@ def tiny(t, **kw):
 def small_curve_maps():
     """Three 5x5 held-out maps a set, so that a curve point takes a moment."""
     maps = {name: [gw.Scenario(s.obstacles, s.starts[:1], s.covered) for s in gw.load_dataset(
-        ROOT / "maps" / f"{name}.npz")[:3]] for name in rc.CURVE_SLICES}
+        ROOT / "maps" / f"{name}.npz")[:3]] for name in gw.CURVE_SLICES}
     return maps
 
 
 def test_curve_points_go_to_the_json_and_the_checkpoint_and_survive_a_resume(tmp_path, monkeypatch, restore_sigint):
     monkeypatch.chdir(tmp_path)
-    monkeypatch.setattr(rc, "curve_maps", small_curve_maps)
+    monkeypatch.setattr(gw, "curve_maps", small_curve_maps)
     rc.main(tiny(rc, total_steps=64, curve_every=32))
     curve = json.loads((tmp_path / "runs" / "t" / "curve.json").read_text())["curve"]
     assert [p["step"] for p in curve] == [32, 64]
@@ -181,8 +181,10 @@ def test_diagnostics_by_hand():
     q.reset_noise(False)
     maps, extras = torch.zeros(2, 15, 11, 11, dtype=torch.uint8), torch.zeros(2, 1 + rc.EXTRAS)
     q_all = torch.tensor([[1.0, 4.0, 2.0, 0.0], [0.5, 0.5, 0.5, 0.5]])
-    d = rc.diagnostics_of(q, maps, extras, q_all, torch.tensor([-2.0, 1.0]), torch.tensor([0.5, 1.0]),
-                          torch.tensor(3.0))
+    tagged = rc.diagnostics_of(q, maps, extras, q_all, torch.tensor([-2.0, 1.0]), torch.tensor([0.5, 1.0]),
+                               torch.tensor(3.0), {"td_loss": torch.tensor(0.25), "margin_loss": None})
+    assert tagged["losses/td_loss"] == 0.25 and "losses/margin_loss" not in tagged  # None: not computed
+    d = {k.removeprefix("diagnostics/"): v for k, v in tagged.items() if k.startswith("diagnostics/")}
     assert d["q_spread"] == pytest.approx((4 + 0) / 2)
     assert d["action_gap"] == pytest.approx((2 + 0) / 2)
     assert d["td_error"] == pytest.approx(1.5)

@@ -1,4 +1,5 @@
-"""The shape of the repo the design card promises: the world's class holds its state and rules only."""
+"""The shape of the repo the design card promises: the world's class holds its state and rules only, and each
+trainer reads in one sitting."""
 import ast
 from pathlib import Path
 
@@ -14,3 +15,12 @@ def test_the_world_class_holds_state_and_rules_only():
     assert not methods & {"heuristic_actions", "rollout_actions", "team_rollout_actions", "render_rgb", "_draw_maps"}
     functions = {n.name for n in tree.body if isinstance(n, ast.FunctionDef)}
     assert {"heuristic_actions", "rollout_actions", "team_rollout_actions", "draw_maps", "render_rgb"} <= functions
+
+
+def test_each_trainer_is_read_in_one_sitting():
+    """Issue 45: a trainer is at most 1,000 lines, its run files, logging and evaluation loop in gridworld."""
+    for script in ("rainbow_cpp.py", "rainbow_marl.py"):
+        source = (ROOT / script).read_text()
+        assert len(source.splitlines()) <= 1000, script
+        names = {n.name for n in ast.parse(source).body if isinstance(n, (ast.FunctionDef, ast.ClassDef))}
+        assert {"Args", "QNetwork", "Replay", "learn", "evaluate_policy", "main"} <= names, script
