@@ -80,8 +80,7 @@ def scalars(run_dir: str, tag: str) -> list[tuple[int, float]]:
 def main(a: Args) -> None:
     if not a.rates or any(not 0 < r < 1 for r in a.rates) or not 0 < a.stage_steps_scale <= 1 or a.eval_every < 16:
         raise ValueError("--rates in (0, 1), --stage-steps-scale in (0, 1] and --eval-every >= 16")
-    if a.trainer not in RECIPE:
-        raise ValueError(f"--trainer must be one of {', '.join(RECIPE)}, got {a.trainer!r}")
+    gridworld.check_choices(a)
     trainer = importlib.import_module(a.trainer)
     if a.network not in trainer.NETWORKS or a.total_steps < 0:
         raise ValueError(f"--network must be one of {', '.join(trainer.NETWORKS)} and --total-steps >= 0")
