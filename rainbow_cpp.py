@@ -86,7 +86,7 @@ class Args:
     batch_size: int = 32
     """transitions per gradient step"""
     learning_starts: int = 5000
-    """environment steps before learning, acted by the heuristic (§6.4.2.4 condition 1)"""
+    """environment steps before learning, acted by the heuristic (§6.4.2.4 condition 1); a resumed run's memory refills as long"""
     demonstration_steps: int = 0
     """environment steps acted by the heuristic alone, past learning_starts (DQfD-like pre-training; 0: none)"""
     replay_ratio: float = 8.0
@@ -645,12 +645,12 @@ def check_flags(args: Args) -> None:
 
 
 def settle_flags(args: Args) -> Args:
-    """The flags a run trains with: on --resume the run's own (gridworld.resumed_flags; --learning-rate replaces the
-    run's rate); a rate set nowhere is LEARNING_RATE."""
+    """The flags a run trains with: on --resume the run's own (gridworld.resumed_flags; --learning-rate and
+    --learning-starts, the refill of its empty replay memory, replace the run's); a rate set nowhere is LEARNING_RATE."""
     if args.resume:
         path = os.path.join("runs", gridworld.run_folder(args.run_name, args.exp_name, args.seed, True), "checkpoint.pt")
         saved = gridworld.load_checkpoint(path, SCRIPT).get("args") or {}
-        args = replace(args, **gridworld.resumed_flags(args, saved, path, gridworld.RUN_FLAGS, ("learning_rate",)))
+        args = replace(args, **gridworld.resumed_flags(args, saved, path, gridworld.RUN_FLAGS, gridworld.RESUME_FLAGS))
     return args if args.learning_rate is not None else replace(args, learning_rate=LEARNING_RATE)
 
 
