@@ -2,8 +2,8 @@
 
 - --curve-every appends a learning-curve point (greedy policy with and without the fallback on fixed held-out maps,
   steps/s, peak memory) to runs/RUN/curve.json and to the checkpoint; a resumed run goes on with the same curve.
-- A resumed run refills its empty replay memory for learning_starts steps before it learns, and gets its target
-  network back from the checkpoint.
+- A resumed run refills its empty replay memory for learning_starts steps before it learns (--learning-starts and
+  --learning-rate may change on --resume), and gets its target network back from the checkpoint.
 - SIGTERM and Ctrl-C save a checkpoint and exit 128 + the signal's number.
 - diagnostics_of reports hand-computable figures (Q spread, action gap, |TD error|, dead units).
 - The compact network's channels-last forward is the grouped convolution of the scale-major channels.
@@ -117,6 +117,7 @@ def test_a_resumed_run_keeps_its_own_flags_and_refuses_contradicting_ones(t, tmp
     with pytest.raises(ValueError, match=r"^--gamma 0.9 contradicts runs/t/checkpoint.pt \(gamma 0.99\)"):
         t.settle_flags(t.Args(run_name="t", resume=True, gamma=0.9))
     assert t.settle_flags(t.Args(run_name="t", resume=True, learning_rate=1e-4)).learning_rate == 1e-4
+    assert t.settle_flags(t.Args(run_name="t", resume=True, learning_starts=250_000)).learning_starts == 250_000
     assert t.settle_flags(t.Args(run_name="u")).learning_rate == t.LEARNING_RATE  # Table 6.1's / 7.1's
 
 
@@ -232,7 +233,8 @@ def test_the_committed_scale_run_resumes_with_the_documented_command(tmp_path, m
     shutil.copy(SCALE_CHECKPOINT, run / "checkpoint.pt")
     monkeypatch.chdir(tmp_path)
     settled = rc.settle_flags(args)  # the documented flags do not contradict the run's own
-    assert all(getattr(settled, k) == v for k, v in recorded.items() if k not in gw.RUN_FLAGS and hasattr(settled, k))
+    assert all(getattr(settled, k) == v for k, v in recorded.items() if k not in gw.RUN_FLAGS + gw.RESUME_FLAGS
+               and hasattr(settled, k))
     resumed = rc.start_run(args, 6)
     q, target = resumed[2], resumed[3]
     assert resumed[6][:2] == (state["global_step"], state["stage"])
