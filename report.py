@@ -328,6 +328,12 @@ def checkpoint_record(path: str, state: dict) -> dict:
             "stage": state.get("stage")}
 
 
+def model_record(path: str) -> dict:
+    """checkpoint_record of a training checkpoint, or of an export with the steps and stage of the JSON beside it."""
+    state = gridworld.read_model(path)
+    return checkpoint_record(path, state if "global_step" in state else _model_json(path))
+
+
 def scale_references(model: str, quiet: bool = False) -> dict:
     """The references of the scale run's learning curve on its own held-out maps (gridworld.curve_maps): the
     dissertation's heuristic with deterministic ties (greedy), greedy-far-first, LKH and the shipped model with its
@@ -370,7 +376,7 @@ def scale_figures(model: str, p2p_maps: int, quiet: bool = False) -> dict:
     the MovingAI episodes and p2p_eval, as the rainbow_cpp part measures the shipped model."""
     scenarios, sizes = classical_cpp.cpp_eval_subset(FIGURES_PER_SIZE)
     episodes = [(f"cpp_eval.npz[{z}x{z}]", classical_cpp.with_starts(s)) for s, z in zip(scenarios, sizes)]
-    result = {"model": checkpoint_record(model, gridworld.read_model(model)), "per_size": FIGURES_PER_SIZE}
+    result = {"model": model_record(model), "per_size": FIGURES_PER_SIZE}
     for key, fallback in (("fallback", True), ("alone", False)):
         rows = evaluate.run_rainbow(evaluate.Args(policy="rainbow", checkpoint=model, heuristic=fallback,
                                                   heuristic_dead_ends=False, quiet=quiet), episodes)

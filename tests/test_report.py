@@ -485,7 +485,8 @@ def tiny(tmp_path, monkeypatch, small_report_maps):
     monkeypatch.setattr(report, "MODELS", {
         "rainbow_cpp": rainbow, "sensors": rainbow,
         "rainbow_marl": _tiny_model(rainbow_marl, models / "rainbow_marl.pt", {}), "tabular": str(table),
-        "scale_references": rainbow, "rainbow_cpp_scale": scale_run, "scale_figures": scale_run,
+        "scale_references": rainbow, "rainbow_cpp_scale": scale_run,
+        "scale_figures": _tiny_model(rainbow_cpp, models / "rainbow_cpp_dissertation.pt", {}),  # an export
         "td_finetune": _tiny_finetune_checkpoint(scale_run, models / "td_run.pt", rainbow)})
     return tmp_path
 
@@ -557,6 +558,9 @@ def test_all_on_tiny_settings_writes_into_out_only(tiny):
     assert list(mr["structured_eval"]["agents"]) == ["2", "3"] and mr["structured_eval"]["maps"] == 2
     assert list(mr["structured_eval"]["agents"]["3"]) == ["time_save", "completion", "greedy", "greedy_dead_ends",
                                                           "greedy_far_first", "partition"]
+    figs = json.loads((out / "rainbow_cpp_scale_figures.json").read_text())["model"]
+    assert (figs["path"], figs["global_step"], figs["stage"]) == (  # an export's steps and stage: from its JSON
+        os.path.relpath(tiny / "models" / "rainbow_cpp_dissertation.pt", ROOT), 10, "tiny")
     td = json.loads((out / "rainbow_cpp_td_finetune.json").read_text())
     assert td["curve"] == json.loads((out / "rainbow_cpp_scale.json").read_text())["curve"]
     assert td["parent"]["global_step"] == 10 and td["shipped"]["sha256"] == td["parent"]["sha256"]
