@@ -727,7 +727,7 @@ CHECKPOINT_KEYS = ("model", "optimizer", "global_step", "stage", "wall", "numpy_
 RUN_FLAGS = ("exp_name", "run_name", "resume", "threads", "cuda", "torch_deterministic", "track", "wandb_project_name",
              "wandb_entity", "quiet", "capture_video", "total_steps", "time_limit", "eval_every", "eval_maps",
              "save_every", "curve_every", "export", "overwrite", "init_from")  # how a run goes, not what it learns
-RESUME_FLAGS = ("learning_rate", "learning_starts")  # a diverged run resumes slower; its empty replay refills longer
+RESUME_FLAGS = ("learning_rate", "learning_starts", "seed")  # a diverged run may resume slower, on other maps
 
 
 def check_choices(args: Any) -> None:
@@ -839,9 +839,10 @@ def check_network_size(build: Any, flags: str) -> None:
 
 
 def restore_run(state: dict, path: str, q: Any, target: Any, optimizer: Any, rng: np.random.Generator,
-                learning_rate: float) -> None:
+                learning_rate: float, seed: int) -> None:
     """A checkpoint's online and target weights, optimizer and random states put back, at `learning_rate` (the
-    flag's, not the saved one: a diverged run resumes slower); a state that does not fit is a one-line error."""
+    flag's, not the saved one: a diverged run resumes slower); with a `seed` other than the run's, the random states
+    stay as that seed set them (other maps, coin flips and noise); a state that does not fit is a one-line error."""
     import torch
 
     try:
@@ -850,8 +851,9 @@ def restore_run(state: dict, path: str, q: Any, target: Any, optimizer: Any, rng
         optimizer.load_state_dict(state["optimizer"])
         for group in optimizer.param_groups:
             group["lr"] = learning_rate
-        rng.bit_generator.state = state["numpy_rng"]
-        torch.set_rng_state(state["torch_rng"])
+        if state.get("args", {}).get("seed", seed) == seed:
+            rng.bit_generator.state = state["numpy_rng"]
+            torch.set_rng_state(state["torch_rng"])
     except UNREADABLE as e:
         raise ValueError(f"{path}: does not fit this run ({reason(e)})") from None
 

@@ -643,8 +643,8 @@ def check_flags(args: Args) -> None:
 
 
 def settle_flags(args: Args) -> Args:
-    """The flags a run trains with: on --resume the run's own (gridworld.resumed_flags; --learning-rate and
-    --learning-starts, the refill of its empty replay memory, replace the run's); a rate set nowhere is LEARNING_RATE."""
+    """The flags a run trains with: on --resume the run's own (gridworld.resumed_flags), but for those the command
+    line may change (gridworld.RESUME_FLAGS: rate, refill, seed); a rate set nowhere is LEARNING_RATE."""
     if args.resume:
         path = os.path.join("runs", gridworld.run_folder(args.run_name, args.exp_name, args.seed, True), "checkpoint.pt")
         saved = gridworld.load_checkpoint(path, SCRIPT).get("args") or {}
@@ -721,7 +721,7 @@ def start_run(args: Args, n_stages: int) -> tuple:
     if state is not None:
         if not (isinstance(state["stage"], int) and 0 <= state["stage"] < n_stages):
             raise ValueError(f"{checkpoint}: stage {state['stage']} of a curriculum of {n_stages} stages")
-        gridworld.restore_run(state, checkpoint, q, target, optimizer, rng, args.learning_rate)
+        gridworld.restore_run(state, checkpoint, q, target, optimizer, rng, args.learning_rate, args.seed)
         progress = (state["global_step"], state["stage"], state["wall"], list(state.get("curve", [])))
         parent = state.get("parent")
     else:

@@ -118,6 +118,30 @@ def test_a_resumed_run_keeps_its_own_flags_and_refuses_contradicting_ones(t, tmp
         t.settle_flags(t.Args(run_name="t", resume=True, gamma=0.9))
     assert t.settle_flags(t.Args(run_name="t", resume=True, learning_rate=1e-4)).learning_rate == 1e-4
     assert t.settle_flags(t.Args(run_name="t", resume=True, learning_starts=250_000)).learning_starts == 250_000
+    assert t.settle_flags(t.Args(run_name="t", resume=True, seed=2)).seed == 2
+
+
+@pytest.mark.parametrize("t", [rc, rm])
+def test_a_resume_with_another_seed_draws_other_random_states(t, tmp_path, monkeypatch, restore_sigint):
+    """The same --seed puts the run's numpy and torch states back; another one leaves them as it seeded them."""
+    monkeypatch.chdir(tmp_path)
+    t.main(tiny(t, total_steps=64))
+    state = torch.load(tmp_path / "runs" / "t" / "checkpoint.pt", weights_only=False)
+    loaded, start_run = [], t.start_run
+
+    def recording(*a):  # the random states as start_run leaves them, before the run draws from them
+        run = start_run(*a)
+        loaded.append((run[5].bit_generator.state, torch.get_rng_state()))
+        return run
+
+    monkeypatch.setattr(t, "start_run", recording)
+    for seed, total in ((1, 80), (2, 96)):
+        t.main(tiny(t, total_steps=total, resume=True, seed=seed))
+    (same, same_torch), (other, other_torch) = loaded
+    assert same == state["numpy_rng"] and torch.equal(same_torch, state["torch_rng"])
+    assert other == np.random.default_rng(2).bit_generator.state
+    assert not torch.equal(other_torch, state["torch_rng"])
+    assert torch.load(tmp_path / "runs" / "t" / "checkpoint.pt", weights_only=True)["args"]["seed"] == 2
     assert t.settle_flags(t.Args(run_name="u")).learning_rate == t.LEARNING_RATE  # Table 6.1's / 7.1's
 
 
