@@ -61,7 +61,7 @@ MODELS = {"rainbow_cpp": evaluate.DEFAULT_CHECKPOINT["rainbow"], "sensors": eval
           "rainbow_marl": evaluate.DEFAULT_CHECKPOINT["marl"],
           "tabular": evaluate.DEFAULT_CHECKPOINT["tabular"], "scale_references": evaluate.DEFAULT_CHECKPOINT["rainbow"],
           "rainbow_cpp_scale": "models/rainbow_cpp_dissertation_run.pt",  # the scale run's committed training state
-          "scale_figures": "models/rainbow_cpp_dissertation_run.pt",
+          "scale_figures": "models/rainbow_cpp_dissertation.pt",  # its export at the curriculum's end
           "td_finetune": "models/rainbow_cpp_td_finetune_run.pt"}  # the TD fine-tuning's committed training state
 SCRIPTS = {"rainbow_cpp": "rainbow_cpp.py", "sensors": "rainbow_cpp.py", "rainbow_marl": "rainbow_marl.py",
            "tabular": "tabular_q.py", "scale_references": "rainbow_cpp.py", "rainbow_cpp_scale": "rainbow_cpp.py",
