@@ -86,7 +86,7 @@ class Args:
     batch_size: int = 32
     """transitions per gradient step"""
     learning_starts: int = 5000
-    """environment steps before learning, acted by the heuristic (§6.4.2.4 condition 1); a resumed run's memory refills as long"""
+    """environment steps before learning, acted by the heuristic (§6.4.2.4 condition 1); on --resume the agent refills as long"""
     demonstration_steps: int = 0
     """environment steps acted by the heuristic alone, past learning_starts (DQfD-like pre-training; 0: none)"""
     replay_ratio: float = 8.0
