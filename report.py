@@ -1310,7 +1310,11 @@ def scale_lines(scale: dict | None, refs: dict | None) -> list[str]:
              f"(sha256 {scale['sha256'][:12]}) stands at {scale['global_step']:,} steps, stage index {scale['stage']}, "
              f"{scale['wall_seconds'] / 3600:.1f} h of training. Each point: the greedy policy on every 5th cpp_eval map "
              "(520, sizes 5-30) and every 14th structured_eval map (120), with the fallback and without it "
-             "(alone: completion and outliers, overlap > 0.5 or truncated, §6.5.2).", ""]
+             "(alone: completion and outliers, overlap > 0.5 or truncated, §6.5.2). Steps/s counts every environment "
+             "step since the previous point: after a resume the run first refills its replay memory for "
+             f"`--learning-starts` ({a['learning_starts']:,} now) steps without updates, many times faster than "
+             "learning, so a point whose interval holds a resume or its refill reads fast (steps since a resume "
+             "says which).", ""]
     if not scale["curve"]:
         return lines + ["No point of the learning curve yet (the first comes at `--curve-every` steps)."]
     rows = [[f"{p['step']:,}", p["stage"], f"{p['cpp_eval']['overlap']:.3f}", f"{100 * p['cpp_eval']['completion']:.1f}%",
