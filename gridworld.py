@@ -727,7 +727,8 @@ CHECKPOINT_KEYS = ("model", "optimizer", "global_step", "stage", "wall", "numpy_
 RUN_FLAGS = ("exp_name", "run_name", "resume", "threads", "cuda", "torch_deterministic", "track", "wandb_project_name",
              "wandb_entity", "quiet", "capture_video", "total_steps", "time_limit", "eval_every", "eval_maps",
              "save_every", "curve_every", "export", "overwrite", "init_from")  # how a run goes, not what it learns
-RESUME_FLAGS = ("learning_rate", "learning_starts", "seed")  # a resume may go slower, refill longer or draw other maps
+# a resume may step slower, refill longer, draw other maps or lag its target network more
+RESUME_FLAGS = ("learning_rate", "learning_starts", "seed", "tau")
 
 
 def check_choices(args: Any) -> None:

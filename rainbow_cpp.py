@@ -646,7 +646,7 @@ def check_flags(args: Args) -> None:
 
 def settle_flags(args: Args) -> Args:
     """The flags a run trains with: on --resume the run's own (gridworld.resumed_flags), but for those the command
-    line may change (gridworld.RESUME_FLAGS: rate, refill, seed); a rate set nowhere is LEARNING_RATE."""
+    line may change (gridworld.RESUME_FLAGS: rate, refill, seed, τ); a rate set nowhere is LEARNING_RATE."""
     if args.resume:
         path = os.path.join("runs", gridworld.run_folder(args.run_name, args.exp_name, args.seed, True), "checkpoint.pt")
         saved = gridworld.load_checkpoint(path, SCRIPT).get("args") or {}

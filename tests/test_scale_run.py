@@ -119,6 +119,7 @@ def test_a_resumed_run_keeps_its_own_flags_and_refuses_contradicting_ones(t, tmp
     assert t.settle_flags(t.Args(run_name="t", resume=True, learning_rate=1e-4)).learning_rate == 1e-4
     assert t.settle_flags(t.Args(run_name="t", resume=True, learning_starts=250_000)).learning_starts == 250_000
     assert t.settle_flags(t.Args(run_name="t", resume=True, seed=2)).seed == 2
+    assert t.settle_flags(t.Args(run_name="t", resume=True, tau=0.01)).tau == 0.01
 
 
 @pytest.mark.parametrize("t", [rc, rm])
