@@ -960,7 +960,7 @@ def main(args: Args) -> None:
             point = {"step": global_step, "stage": stages[stage_index].name, "wall_seconds": round(tick - t0),
                      "sps": round((global_step - curve_clock[0]) / max(tick - curve_clock[1], 1e-9)),
                      "steps_since_resume": global_step - replay_born,  # the replay memory restarted then
-                     "peak_rss_mb": gridworld.peak_memory_mb(), "learning_rate": args.learning_rate}
+                     "peak_rss_mb": gridworld.peak_memory_mb(), "learning_rate": args.learning_rate, "tau": args.tau}
             point |= gridworld.curve_point(held_out, lambda maps, fallback: evaluate_policy(
                 q, maps, args.frame_stack, heuristic=fallback, dead_ends_first=args.heuristic_dead_ends))
             curve.append(point | {"eval_seconds": round(time.time() - tick)})

@@ -1302,7 +1302,7 @@ def scale_lines(scale: dict | None, refs: dict | None) -> list[str]:
         return [NOT_COLLECTED.format(file=PARTS["rainbow_cpp_scale"], part="rainbow_cpp_scale",
                                      model=MODELS["rainbow_cpp_scale"], script="rainbow_cpp.py")]
     a = scale["args"]
-    flags = (f"--network {a['network']} --learning-rate {a['learning_rate']:g} --stage-steps-scale "
+    flags = (f"--network {a['network']} --learning-rate {a['learning_rate']:g} --tau {a['tau']:g} --stage-steps-scale "
              f"{a['stage_steps_scale']:g}" + ("" if a["camera_stages"] else " --no-camera-stages")
              + ("" if a["heuristic_dead_ends"] else " --no-heuristic-dead-ends")
              + (" --heuristic-random-ties" if a["heuristic_random_ties"] else ""))
